@@ -1,0 +1,33 @@
+# Quick start: `make demo` (main job on the embedded defaults) and `make test`. Each creates .venv on first use.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint bench sim-demo clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install --upgrade --quiet pip
+	# torch first and pinned: the local CPU-usable wheels, never a fresh multi-GB download by a resolver
+	$(BIN)/pip install --quiet torch==2.14.1 torchvision==0.29.1
+	$(BIN)/pip install --quiet -e '.[dev,robot]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python train.py experiment=smoke
+
+sim-demo: $(STAMP)
+	$(BIN)/python -m tvrecon.sim press --shape torus --direction 0 0 -1 --out outputs/sim_demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_sim.py
+
+clean:
+	rm -rf outputs multirun lightning_logs .pytest_cache
