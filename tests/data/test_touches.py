@@ -1,0 +1,159 @@
+"""Touch policies: surface sampling, press-direction cones, visibility, batching into the simulator, resizing."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from tvrecon.data.render import sample_camera
+from tvrecon.data.touches import (
+    TouchPolicy,
+    cone_directions,
+    resize_tactile,
+    sample_touches,
+    simulate_touches,
+    visible_points,
+)
+
+
+@pytest.fixture(scope="module")
+def torus() -> trimesh.Trimesh:
+    return trimesh.creation.torus(major_radius=0.3, minor_radius=0.12)
+
+
+def _angles_deg(a: torch.Tensor, b: torch.Tensor) -> np.ndarray:
+    cos = (a.double() * b.double()).sum(1).clamp(-1, 1)
+    return np.degrees(np.arccos(cos.numpy()))
+
+
+def test_positions_on_surface_and_directions_in_cone(torus: trimesh.Trimesh) -> None:
+    policy = TouchPolicy(cone_deg=20.0)
+    t = sample_touches(torus, 300, seed=1, policy=policy)
+    pos, dirs, normals = t["positions"], t["directions"], t["normals"]
+    assert pos.shape == (300, 3) and dirs.shape == (300, 3) and pos.dtype == torch.float32
+    closest, dist, tri = trimesh.proximity.closest_point(torus, pos.numpy())
+    assert dist.max() < 1e-5
+    true_n = torch.as_tensor(torus.face_normals[tri], dtype=torch.float32)
+    assert _angles_deg(normals, true_n).max() < 1.0  # same face up to ties at edges
+    assert torch.allclose(dirs.norm(dim=1), torch.ones(300), atol=1e-5)
+    ang = _angles_deg(dirs, -true_n)
+    assert ang.max() <= 20.0 + 1.0 and ang.max() > 15.0  # fills the cone, never leaves it
+    assert all(s in policy.strengths for s in t["strengths"])
+
+
+def test_zero_cone_is_inward_normal(torus: trimesh.Trimesh) -> None:
+    t = sample_touches(torus, 50, seed=2, policy=TouchPolicy(cone_deg=0.0))
+    assert torch.allclose(t["directions"], -t["normals"], atol=1e-6)
+    # inward: a small step along the direction goes inside the (watertight) torus
+    inside = torus.contains((t["positions"] + 0.01 * t["directions"]).numpy())
+    assert inside.all()
+
+
+def test_cone_is_uniform_on_the_cap() -> None:
+    rng = np.random.default_rng(0)
+    axes = rng.normal(size=(20000, 3))
+    d = cone_directions(axes, 30.0, rng)
+    cos = np.einsum("ij,ij->i", d, axes / np.linalg.norm(axes, axis=1, keepdims=True))
+    assert cos.min() >= np.cos(np.deg2rad(30.0)) - 1e-9
+    # uniform by solid angle: cos(theta) is uniform on [cos(30 deg), 1]
+    assert cos.mean() == pytest.approx((1 + np.cos(np.deg2rad(30.0))) / 2, abs=3e-3)
+
+
+def test_area_weighted_sampling() -> None:
+    slab = trimesh.creation.box((1.0, 1.0, 0.1))
+    pos = sample_touches(slab, 4000, seed=0)["positions"]
+    on_big_faces = (pos[:, 2].abs() > 0.05 - 1e-6).float().mean().item()
+    assert on_big_faces == pytest.approx(2.0 / 2.4, abs=0.03)
+
+
+def test_strengths_and_determinism(torus: trimesh.Trimesh) -> None:
+    policy = TouchPolicy(strengths=[{"depth": 2.0}, {"depth": 3.0}, {"force": 1.5}])
+    a = sample_touches(torus, 200, seed=5, policy=policy)
+    b = sample_touches(torus, 200, seed=5, policy=policy)
+    c = sample_touches(torus, 200, seed=6, policy=policy)
+    assert torch.equal(a["positions"], b["positions"]) and torch.equal(a["directions"], b["directions"])
+    assert a["strengths"] == b["strengths"]
+    assert not torch.equal(a["positions"], c["positions"])
+    assert {tuple(s.items()) for s in a["strengths"]} == {(("depth", 2.0),), (("depth", 3.0),), (("force", 1.5),)}
+
+
+def _first_hit_is_point(mesh: trimesh.Trimesh, center: np.ndarray, p: np.ndarray) -> bool:
+    d = (p - center) / np.linalg.norm(p - center)
+    locs, _, _ = trimesh.ray.ray_triangle.RayMeshIntersector(mesh).intersects_location(center[None], d[None])
+    first = locs[np.argmin(np.linalg.norm(locs - center, axis=1))]
+    return bool(np.linalg.norm(first - p) < 1e-4)
+
+
+def test_visible_only(torus: trimesh.Trimesh) -> None:
+    cam = sample_camera(4, image_size=64)
+    center = cam.center.double().numpy()
+    t = sample_touches(torus, 12, seed=0, policy=TouchPolicy(visible_only=True), camera=cam)
+    for p in t["positions"].double().numpy():
+        assert _first_hit_is_point(torus, center, p)
+    # the filter actually rejects something: plain samples include hidden points
+    pts, faces = trimesh.sample.sample_surface(torus, 200, seed=0)
+    vis = visible_points(torus, pts, torus.face_normals[faces], cam)
+    assert 0 < vis.sum() < len(vis)
+    for i in np.flatnonzero(~vis)[:10]:
+        assert not _first_hit_is_point(torus, center, pts[i]) or torus.face_normals[faces[i]] @ (center - pts[i]) <= 0
+
+
+def test_bad_inputs(torus: trimesh.Trimesh) -> None:
+    with pytest.raises(ValueError, match="camera"):
+        sample_touches(torus, 3, 0, TouchPolicy(visible_only=True))
+    with pytest.raises(ValueError, match="cone_deg"):
+        TouchPolicy(cone_deg=95.0)
+    with pytest.raises(ValueError, match="strengths"):
+        TouchPolicy(strengths=[])
+    with pytest.raises(ValueError, match="strengths"):
+        TouchPolicy(strengths={"depth": 2.0})
+    with pytest.raises(ValueError, match="n "):
+        sample_touches(torus, 0, 0)
+    with pytest.raises(ValueError, match="no faces"):
+        sample_touches(trimesh.Trimesh(), 3, 0)
+    with pytest.raises(ValueError, match=r"\(T, 3, h, w\) or \(3, h, w\)"):
+        resize_tactile(torch.zeros(2, 64, 64))
+    with pytest.raises(ValueError, match="missing key"):
+        simulate_touches(None, torus, {"positions": torch.zeros(1, 3)})
+
+
+def test_resize_tactile() -> None:
+    x = torch.rand(4, 3, 64, 64)
+    assert resize_tactile(x).shape == (4, 3, 224, 224)
+    assert resize_tactile(x[0]).shape == (3, 224, 224)
+    assert resize_tactile(x, size=(32, 48)).shape == (4, 3, 32, 48)
+    assert resize_tactile(torch.rand(2, 3, 300, 300), 224).shape == (2, 3, 224, 224)
+    const = torch.full((1, 3, 64, 64), 0.7)
+    assert torch.allclose(resize_tactile(const), torch.full((1, 3, 224, 224), 0.7), atol=1e-6)
+    # a blob keeps its place and mass (area-normalised)
+    blob = torch.zeros(1, 3, 64, 64)
+    blob[:, 2, 20:30, 40:50] = 1.0
+    big = resize_tactile(blob)
+    assert big[0, 2].sum().item() / 224**2 == pytest.approx(blob[0, 2].sum().item() / 64**2, rel=0.02)
+    v, u = torch.nonzero(big[0, 2] > 0.5, as_tuple=True)
+    assert abs(v.float().mean().item() - 24.5 * 224 / 64 - 0.5 * (224 / 64 - 1)) < 1.0
+    assert abs(u.float().mean().item() - 44.5 * 224 / 64 - 0.5 * (224 / 64 - 1)) < 1.0
+
+
+class _RecordingSim:
+    """Stands in for EIPSimulator to check batching: records each press_batch call, returns the touch index."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[int, dict]] = []
+
+    def press_batch(self, mesh, positions, directions, **overrides):
+        self.calls.append((len(positions), overrides))
+        return [(tuple(p.tolist()), dict(overrides)) for p in positions]
+
+
+def test_simulate_touches_batches_by_strength(torus: trimesh.Trimesh) -> None:
+    policy = TouchPolicy(strengths=[{"depth": 2.0}, {"threshold": 0.05}])
+    t = sample_touches(torus, 21, seed=3, policy=policy)
+    sim = _RecordingSim()
+    out = simulate_touches(sim, torus, t, batch_size=4)
+    assert len(out) == 21
+    for i, (pos, strength) in enumerate(out):  # results come back in touch order with their own strength
+        assert pos == tuple(t["positions"][i].tolist()) and strength == t["strengths"][i]
+    assert all(n <= 4 for n, _ in sim.calls)
+    n_depth = sum(s == {"depth": 2.0} for s in t["strengths"])
+    assert len(sim.calls) == -(-n_depth // 4) + -(-(21 - n_depth) // 4)

@@ -1,0 +1,276 @@
+"""Touch policies (issue 3, "Touches"): where, in which direction and how hard the sensor presses.
+
+A touch is a contact point sampled on the surface (area-weighted, optionally only where the camera sees the
+object), a press direction along the inward normal perturbed uniformly inside a cone, and a press strength (the
+simulator's stop rule: an eq. 13 chamfer ``threshold``, an indentation ``depth`` or a ``force``) drawn from a
+configured list: the paper's "different press directions and forces". `simulate_touches` runs them through
+`EIPSimulator.press_batch`; `resize_tactile` brings raw tactile images to the model resolution with kornia.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import kornia
+import numpy as np
+import torch
+import trimesh
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from tvrecon.data.render import Camera, ray_intersector, world_to_camera
+
+if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
+    from tvrecon.sim.press import EIPSimulator, TactileReading
+
+__all__ = ["TouchPolicy", "sample_touches", "visible_points", "cone_directions", "simulate_touches", "resize_tactile"]
+
+
+def _default_strengths() -> tuple[dict, ...]:
+    # eq. 13 terminal thresholds (squared grid cells per contact-layer particle) around the simulator's default
+    return ({"threshold": 0.025}, {"threshold": 0.05}, {"threshold": 0.1})
+
+
+@dataclass
+class TouchPolicy:
+    """How touches are sampled.
+
+    Attributes:
+        cone_deg: half-angle (degrees) of the cone around the inward normal -n in which press directions are
+            drawn uniformly (0 = exactly along -n).
+        strengths: press strengths, each a dict of `EIPSimulator.press` overrides (e.g. {"threshold": 0.05},
+            {"depth": 3.0} cells, {"force": 2.0}); every touch draws one uniformly.
+        visible_only: keep only contact points the camera sees (needs `camera=` in `sample_touches`).
+        oversample: candidates drawn per wanted touch before the visibility test.
+    """
+
+    cone_deg: float = 15.0
+    strengths: Sequence[Mapping] = field(default_factory=_default_strengths)
+    visible_only: bool = False
+    oversample: int = 8
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= float(self.cone_deg) < 90.0:
+            raise ValueError(f"TouchPolicy.cone_deg must be in [0, 90) degrees, got {self.cone_deg}")
+        if isinstance(self.strengths, Mapping) or len(self.strengths) == 0:
+            raise ValueError(
+                f"TouchPolicy.strengths must be a non-empty list of dicts like [{{'threshold': 0.05}}], "
+                f"got {self.strengths!r}"
+            )
+        strengths = []
+        for s in self.strengths:
+            if not isinstance(s, Mapping):
+                raise ValueError(f"each TouchPolicy.strengths entry must be a dict of press overrides, got {s!r}")
+            strengths.append({str(k): v for k, v in s.items()})
+        self.strengths = tuple(strengths)
+        if int(self.oversample) < 1:
+            raise ValueError(f"TouchPolicy.oversample must be >= 1, got {self.oversample}")
+
+
+def _check_mesh(mesh: trimesh.Trimesh) -> None:
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
+    if len(mesh.faces) == 0 or not mesh.area > 0:
+        raise ValueError("mesh has no faces (or zero area): touches need a non-empty surface")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError("mesh vertices contain NaN or inf")
+
+
+def cone_directions(axes: np.ndarray, half_angle_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """Unit directions drawn uniformly (by solid angle) in cones around `axes`.
+
+    Args:
+        axes: (T, 3) cone axes (any non-zero length).
+        half_angle_deg: cone half-angle in degrees, in [0, 90).
+        rng: numpy random generator.
+
+    Returns:
+        (T, 3) float64 unit vectors d with angle(d, axis) <= half_angle_deg.
+    """
+    axes = np.asarray(axes, dtype=np.float64)
+    if axes.ndim != 2 or axes.shape[1] != 3:
+        raise ValueError(f"axes must have shape (T, 3), got {axes.shape}")
+    a = axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    cos_max = np.cos(np.deg2rad(half_angle_deg))
+    cos_t = 1.0 - rng.uniform(size=len(a)) * (1.0 - cos_max)  # uniform on the spherical cap
+    sin_t = np.sqrt(np.clip(1.0 - cos_t**2, 0.0, None))
+    phi = rng.uniform(0.0, 2 * np.pi, size=len(a))
+    helper = np.where(np.abs(a[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    e1 = np.cross(a, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(a, e1)
+    d = cos_t[:, None] * a + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def visible_points(mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarray, camera: Camera) -> np.ndarray:
+    """Which surface points the camera sees: in front of it, inside the image, facing it and not occluded.
+
+    Args:
+        mesh: the object, world coordinates.
+        points: (N, 3) points on the surface. normals: (N, 3) their outward normals.
+        camera: the view.
+
+    Returns:
+        (N,) bool.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+        raise ValueError(f"points and normals must both have shape (N, 3), got {points.shape} and {normals.shape}")
+    center = camera.center.double().numpy()
+    cam = world_to_camera(torch.from_numpy(points), camera.RT.double()).numpy()  # (N, 3)
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = cam[:, :2] / z[:, None] @ camera.K.double().numpy()[:2, :2].T + camera.K.double().numpy()[:2, 2]
+    in_frame = (z > 0) & (uv[:, 0] > -0.5) & (uv[:, 0] < camera.width - 0.5)
+    in_frame &= (uv[:, 1] > -0.5) & (uv[:, 1] < camera.height - 0.5)
+    to_cam = center - points
+    dist = np.linalg.norm(to_cam, axis=1)
+    facing = np.einsum("ij,ij->i", normals, to_cam) > 0
+    visible = np.zeros(len(points), dtype=bool)
+    test = np.flatnonzero(in_frame & facing)
+    if len(test) == 0:
+        return visible
+    dirs = -to_cam[test] / dist[test, None]
+    _, ray, loc = ray_intersector(mesh).intersects_id(
+        np.broadcast_to(center, dirs.shape).copy(), dirs, multiple_hits=False, return_locations=True
+    )
+    tol = 1e-3 * max(float(mesh.scale), 1e-9)
+    first_hit = np.full(len(test), np.inf)
+    first_hit[ray] = np.linalg.norm(loc - center, axis=1)
+    visible[test] = first_hit >= dist[test] - tol  # nothing strictly in front of the point
+    return visible
+
+
+def sample_touches(
+    mesh: trimesh.Trimesh,
+    n: int,
+    seed: int,
+    policy: TouchPolicy | None = None,
+    camera: Camera | None = None,
+) -> dict:
+    """Sample `n` touches on `mesh` following `policy`.
+
+    Args:
+        mesh: the object, world coordinates (watertight, outward normals).
+        n: number of touches T >= 1.
+        seed: RNG seed; the same (mesh, n, seed, policy, camera) gives the same touches.
+        policy: the touch policy (default `TouchPolicy()`).
+        camera: the view, required when `policy.visible_only`.
+
+    Returns:
+        dict with "positions" (T, 3) float32 world points on the surface, "directions" (T, 3) float32 unit press
+        directions (into the object), "normals" (T, 3) float32 outward surface normals at the positions,
+        "strengths" list of T dicts of press overrides.
+    """
+    policy = policy if policy is not None else TouchPolicy()
+    _check_mesh(mesh)
+    if int(n) < 1:
+        raise ValueError(f"n (number of touches) must be >= 1, got {n}")
+    n = int(n)
+    if policy.visible_only and not isinstance(camera, Camera):
+        raise ValueError("TouchPolicy.visible_only needs the view: pass camera=Camera(...) to sample_touches")
+    rng = np.random.default_rng(seed)
+    if policy.visible_only:
+        picked_p, picked_f = [], []
+        count = n * int(policy.oversample)
+        for _ in range(4):  # grow the candidate pool when few points are visible
+            pts, faces = trimesh.sample.sample_surface(mesh, count, seed=rng)
+            keep = visible_points(mesh, pts, mesh.face_normals[faces], camera)
+            picked_p.append(pts[keep])
+            picked_f.append(faces[keep])
+            if sum(len(p) for p in picked_p) >= n:
+                break
+            count *= 4
+        points, faces = np.concatenate(picked_p)[:n], np.concatenate(picked_f)[:n]
+        if len(points) < n:
+            raise ValueError(
+                f"only {len(points)} of {n} touch points are visible from the camera: is the camera inside the "
+                "object or looking away? Use visible_only=False or another camera"
+            )
+    else:
+        points, faces = trimesh.sample.sample_surface(mesh, n, seed=rng)
+    normals = mesh.face_normals[faces]  # (T, 3) outward
+    directions = cone_directions(-normals, float(policy.cone_deg), rng)
+    which = rng.integers(len(policy.strengths), size=n)
+    return {
+        "positions": torch.as_tensor(points, dtype=torch.float32),
+        "directions": torch.as_tensor(directions, dtype=torch.float32),
+        "normals": torch.as_tensor(normals, dtype=torch.float32),
+        "strengths": [dict(policy.strengths[i]) for i in which],
+    }
+
+
+def simulate_touches(
+    sim: EIPSimulator, mesh: trimesh.Trimesh, touches: dict, batch_size: int = 8, progress: bool = False
+) -> list[TactileReading]:
+    """Simulate sampled touches with `sim.press_batch`, several touches per solver call.
+
+    Touches sharing a strength are batched together (up to `batch_size` per call); the output follows the
+    order of `touches`.
+
+    Args:
+        sim: the EIP simulator.
+        mesh: the object the touches were sampled on, world coordinates.
+        touches: output of `sample_touches` ("positions" (T, 3), "directions" (T, 3), "strengths" T dicts).
+        batch_size: touches per `press_batch` call.
+        progress: show a tqdm bar over touches.
+
+    Returns:
+        T `TactileReading`, in the order of the touches.
+    """
+    for key in ("positions", "directions", "strengths"):
+        if key not in touches:
+            raise ValueError(f"touches must be the dict returned by sample_touches; missing key {key!r}")
+    pos = torch.as_tensor(touches["positions"], dtype=torch.float32)
+    dirs = torch.as_tensor(touches["directions"], dtype=torch.float32)
+    strengths = list(touches["strengths"])
+    if pos.ndim != 2 or pos.shape[1] != 3 or dirs.shape != pos.shape or len(strengths) != len(pos):
+        raise ValueError(
+            f"touches need positions (T, 3), directions (T, 3) and T strengths; got {tuple(pos.shape)}, "
+            f"{tuple(dirs.shape)} and {len(strengths)}"
+        )
+    if int(batch_size) < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    groups: dict[tuple, list[int]] = {}
+    for i, s in enumerate(strengths):
+        groups.setdefault(tuple(sorted(s.items())), []).append(i)
+    readings: list = [None] * len(pos)
+    with tqdm(total=len(pos), desc="touches", unit="touch", disable=not progress) as bar:
+        for key, idx in groups.items():
+            for start in range(0, len(idx), int(batch_size)):
+                chunk = idx[start : start + int(batch_size)]
+                out = sim.press_batch(mesh, pos[chunk], dirs[chunk], **dict(key))
+                for i, reading in zip(chunk, out, strict=True):
+                    readings[i] = reading
+                bar.update(len(chunk))
+    return readings
+
+
+def resize_tactile(image: Tensor, size: int | tuple[int, int] = 224) -> Tensor:
+    """Resize tactile images to the model resolution with kornia (bilinear, antialiased when shrinking).
+
+    Args:
+        image: (T, 3, h, w) or (3, h, w) float tactile images (raw simulator resolution).
+        size: output side S (square) or (H, W).
+
+    Returns:
+        (T, 3, H, W) or (3, H, W), same dtype and device as `image`.
+    """
+    image = torch.as_tensor(image)
+    if image.ndim not in (3, 4) or image.shape[-3] != 3:
+        raise ValueError(f"image must have shape (T, 3, h, w) or (3, h, w), got {tuple(image.shape)}")
+    hw = (int(size), int(size)) if isinstance(size, int) else tuple(int(s) for s in size)
+    if len(hw) != 2 or min(hw) < 1:
+        raise ValueError(f"size must be a positive int or an (H, W) pair, got {size!r}")
+    if not image.is_floating_point():
+        image = image.float()
+    batched = image if image.ndim == 4 else image[None]
+    if batched.shape[0] == 0:  # no touches: nothing to interpolate
+        return batched.new_zeros((0, 3, *hw))
+    shrink = hw[0] < batched.shape[-2] or hw[1] < batched.shape[-1]
+    out = kornia.geometry.transform.resize(batched, hw, interpolation="bilinear", align_corners=False, antialias=shrink)
+    return out if image.ndim == 4 else out[0]
