@@ -1,0 +1,97 @@
+"""Table builder (paper Tables 2, 3, 4) against hand-made metric dicts."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import pytest
+
+from tvrecon.tables import build_table2, build_table3, build_table4, build_tables, format_tables, write_tables
+
+
+def _recon(name: str, modality: str, modes: dict[str, float], per_class: dict[str, float] | None = None) -> dict:
+    return {
+        "task": "reconstruction",
+        "name": name,
+        "modality": modality,
+        "modes": {m: {"chamfer": v, "count": 4, "per_class": per_class or {}} for m, v in modes.items()},
+    }
+
+
+FULL = _recon(
+    "full", "tactile_visual", {"visual": 14.07, "tv@2": 10.27, "tv@5": 7.22, "tv@10": 5.32}, {"bottle": 6.0, "can": 4.0}
+)
+VIS = _recon("visual_only", "visual", {"visual": 13.5}, {"bottle": 15.0, "can": 11.0})
+TAC = _recon("tactile_only", "tactile", {"tactile@2": 28.7, "tactile@5": 21.91, "tactile@10": 15.65}, {"can": 15.0})
+
+
+def _csv_rows(text: str) -> list[list[str]]:
+    return list(csv.reader(io.StringIO(text)))
+
+
+def test_table3_columns_rows_and_paper_layout_row() -> None:
+    table = build_table3([FULL, TAC, VIS])
+    rows = _csv_rows(table.to_csv())
+    assert rows[0] == [
+        "Model", "Visual", "Tactile 2", "Tactile 5", "Tactile 10",
+        "Tactile & Visual 2", "Tactile & Visual 5", "Tactile & Visual 10",
+    ]  # fmt: skip
+    # paper order: visual_only, tactile_only, full, then the assembled row
+    assert [r[0] for r in rows[1:]] == ["Visual only (Pixel2Mesh)", "Tactile only", "Ours", "Ours (paper layout)"]
+    assert rows[1][1:] == ["13.50", "-", "-", "-", "-", "-", "-"]
+    assert rows[2][1:] == ["-", "28.70", "21.91", "15.65", "-", "-", "-"]
+    assert rows[3][1:] == ["14.07*", "-", "-", "-", "10.27", "7.22", "5.32"]
+    assert rows[4][1:] == ["13.50", "28.70", "21.91", "15.65", "10.27", "7.22", "5.32"]
+    md = table.to_markdown()
+    assert "masked out" in md and md.startswith("### Table 3")
+
+
+def test_table4_per_class_average_and_primary_mode() -> None:
+    table = build_table4([FULL, VIS, TAC])
+    rows = _csv_rows(table.to_csv())
+    assert rows[0] == ["Model", "bottle", "can", "Average"]  # only the classes present, paper order
+    by_label = {r[0]: r[1:] for r in rows[1:]}
+    assert by_label["Ours"] == ["6.00", "4.00", "5.00"]
+    assert by_label["Visual only (Pixel2Mesh)"] == ["15.00", "11.00", "13.00"]
+    assert by_label["Tactile only"] == ["-", "15.00", "15.00"]
+    assert "Ours: tv@10" in table.to_markdown() and "Tactile only: tactile@10" in table.to_markdown()
+
+
+def test_table4_explicit_classes_keep_missing_as_dash() -> None:
+    table = build_table4([FULL], classes=["bottle", "bowl", "can"])
+    assert _csv_rows(table.to_csv())[1] == ["Ours", "6.00", "-", "4.00", "5.00"]
+
+
+def test_table2_mean_std_over_seeds() -> None:
+    results = [
+        {"task": "classification", "name": "classify", "seed": s, "accuracy": {"1": a1, "10": a10}}
+        for s, a1, a10 in [(0, 0.30, 0.90), (1, 0.40, 0.94), (2, 0.35, 0.92)]
+    ]
+    rows = _csv_rows(build_table2(results).to_csv())
+    assert rows[0] == ["1-touch", "2-touch", "4-touch", "6-touch", "8-touch", "10-touch"]
+    # mean 35.0, sample std 5.0 ; mean 92.0, std 2.0
+    assert rows[1] == ["35.0 +- 5.0", "-", "-", "-", "-", "92.0 +- 2.0"]
+
+
+def test_build_tables_selects_by_task_and_writes_files(tmp_path) -> None:
+    cls = {"task": "classification", "name": "classify", "seed": 0, "accuracy": {"2": 0.5}}
+    tables = build_tables([FULL, cls])
+    assert sorted(tables) == ["table2", "table3", "table4"]
+    paths = write_tables(tables, tmp_path)
+    names = sorted(p.name for p in paths)
+    assert names == ["table2.csv", "table2.md", "table3.csv", "table3.md", "table4.csv", "table4.md", "tables.md"]
+    text = (tmp_path / "tables.md").read_text()
+    assert text == format_tables(tables)
+    assert text.index("Table 2") < text.index("Table 3") < text.index("Table 4")
+    assert not list(tmp_path.glob("*.tmp"))
+    assert build_tables([cls]).keys() == {"table2"}
+
+
+def test_bad_results_raise_clear_errors() -> None:
+    with pytest.raises(ValueError, match="keys 'task' and 'name'"):
+        build_table3([{"chamfer": 1.0}])
+    with pytest.raises(ValueError, match="needs a 'modes' mapping"):
+        build_table3([{"task": "reconstruction", "name": "x"}])
+    with pytest.raises(ValueError, match="needs an 'accuracy' mapping"):
+        build_table2([{"task": "classification", "name": "x"}])

@@ -1,0 +1,330 @@
+"""The paper's result tables (Tables 2, 3 and 4) built from test metric dicts, as Markdown and CSV.
+
+A *result* is the JSON-serialisable dict a LightningModule writes at the end of ``trainer.test`` (and
+``train.py`` / ``eval.py`` save as ``metrics.json``):
+
+Reconstruction (``tvrecon.models.lit_recon.ReconstructionModule.test_results``)::
+
+    {"task": "reconstruction", "name": "full", "modality": "tactile_visual",   # | "visual" | "tactile"
+     "modes": {"visual": {"chamfer": 14.1, "count": 50, "per_class": {"bottle": 13.0, ...}, "fscore@...": ...},
+               "tv@2": {...}, "tv@5": {...}, "tv@10": {...}}}
+
+Mode keys: ``"visual"`` (no touch: the visual-only model, or a fusion model with every touch masked out),
+``"tactile@k"`` (blank view, first k touches), ``"tv@k"`` (view and first k touches). Chamfer values are
+already scaled by 1e3 (the paper's "x 1e-3" unit).
+
+Classification (``tvrecon.models.lit_cls.ClassificationModule.test_results``)::
+
+    {"task": "classification", "name": "classify", "seed": 0, "accuracy": {"1": 0.367, "2": 0.474, ...}}
+
+Table 3 (one row per model): Visual | Tactile 2/5/10 | Tactile & Visual 2/5/10. A fusion model fills its
+Visual cell with its own no-touch chamfer (marked ``*``); the visual-only model fills Visual, the tactile-only
+model the Tactile columns. When ``full`` and the ``visual_only`` / ``tactile_only`` baselines were all
+evaluated, an extra "Ours" row assembles them the way the paper does (Visual from the visual-only model,
+Tactile from the tactile-only model, Tactile & Visual from the full model).
+Table 4 (one row per model): per-class chamfer with the most touches the model was evaluated with (10) and
+the class average. Table 2: classification accuracy (%) by number of touches, mean +- std over runs (seeds).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+RECON_TOUCHES: tuple[int, ...] = (2, 5, 10)
+CLS_TOUCHES: tuple[int, ...] = (1, 2, 4, 6, 8, 10)
+DEFAULT_CLASSES: tuple[str, ...] = (
+    "bottle",
+    "bowl",
+    "can",
+    "conditioner",
+    "cube",
+    "fork",
+    "gear",
+    "pepsi",
+    "spoon",
+    "scissors",
+)
+
+# Row labels of the paper for the experiment names of configs/experiment (unknown names are shown as they are).
+PRETTY_NAMES: dict[str, str] = {
+    "full": "Ours",
+    "visual_only": "Visual only (Pixel2Mesh)",
+    "tactile_only": "Tactile only",
+    "no_gap": "W/o GAP",
+    "no_direction": "W/o tactile direction",
+    "region_1x1": "1x1 per-pixel fusion",
+    "region_5x5": "5x5 per-pixel fusion",
+    "single_stage": "Single-stage fusion",
+    "smoke": "Ours (smoke, tiny data)",
+    "classify": "Tactile classifier",
+}
+# Row order of Tables 3 and 4 (paper order), unknown names after these in input order.
+ROW_ORDER: tuple[str, ...] = (
+    "visual_only",
+    "tactile_only",
+    "full",
+    "no_gap",
+    "no_direction",
+    "region_1x1",
+    "region_5x5",
+    "single_stage",
+    "smoke",
+)
+VISUAL_FOOTNOTE = "* fusion model evaluated with every touch masked out (no tactile input)."
+
+
+@dataclass
+class Table:
+    """A titled table of strings, printable as Markdown and writable as CSV."""
+
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+    notes: list[str] = field(default_factory=list)
+
+    def to_markdown(self) -> str:
+        """GitHub-flavoured Markdown: ``### title``, the table, then notes as lines."""
+        widths = [max(len(str(c)) for c in col) for col in zip(self.header, *self.rows)] if self.rows else None
+        if widths is None:
+            widths = [len(h) for h in self.header]
+
+        def line(cells: Sequence[str]) -> str:
+            return "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"
+
+        out = [f"### {self.title}", "", line(self.header), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+        out += [line(r) for r in self.rows]
+        if not self.rows:
+            out.append("(no results)")
+        if self.notes:
+            out.append("")
+            out += self.notes
+        return "\n".join(out) + "\n"
+
+    def to_csv(self) -> str:
+        """CSV text: header row then data rows (notes are not included)."""
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow(self.header)
+        writer.writerows(self.rows)
+        return buf.getvalue()
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def _check_results(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    out = list(results)
+    for r in out:
+        if not isinstance(r, Mapping) or "task" not in r or "name" not in r:
+            raise ValueError(
+                f"each result must be a mapping with keys 'task' and 'name' (a metrics.json written by "
+                f"train.py/eval.py), got {r!r:.200}"
+            )
+        if r["task"] == "reconstruction" and not isinstance(r.get("modes"), Mapping):
+            raise ValueError(
+                f"reconstruction result {r['name']!r} needs a 'modes' mapping, got {r.get('modes')!r:.200}"
+            )
+        if r["task"] == "classification" and not isinstance(r.get("accuracy"), Mapping):
+            raise ValueError(
+                f"classification result {r['name']!r} needs an 'accuracy' mapping, got {r.get('accuracy')!r:.200}"
+            )
+    return out
+
+
+def _ordered(results: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    def key(item: tuple[int, Mapping[str, Any]]) -> tuple[int, int]:
+        idx, r = item
+        name = str(r["name"])
+        return (ROW_ORDER.index(name) if name in ROW_ORDER else len(ROW_ORDER), idx)
+
+    return [r for _, r in sorted(enumerate(results), key=key)]
+
+
+def _label(result: Mapping[str, Any], duplicates: set[str]) -> str:
+    name = str(result["name"])
+    label = PRETTY_NAMES.get(name, name)
+    if name in duplicates and result.get("seed") is not None:
+        label += f" (seed {result['seed']})"
+    return label
+
+
+def _chamfer(result: Mapping[str, Any], mode: str) -> float | None:
+    entry = result["modes"].get(mode)
+    return None if entry is None else float(entry["chamfer"])
+
+
+def primary_mode(result: Mapping[str, Any]) -> str:
+    """The mode used for Table 4: the most touches of the model's own modality (``"visual"`` for visual-only)."""
+    modes = result["modes"]
+    for prefix in ("tv@", "tactile@"):
+        ks = [int(m.split("@")[1]) for m in modes if m.startswith(prefix)]
+        if ks:
+            return f"{prefix}{max(ks)}"
+    if "visual" in modes:
+        return "visual"
+    raise ValueError(f"result {result['name']!r} has no evaluated mode (modes={list(modes)})")
+
+
+def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
+    """Table 3: mean chamfer (x1e-3) per model for Visual, Tactile k and Tactile & Visual k touches.
+
+    Args:
+        results: result dicts (see module docstring); classification results are skipped.
+        touches: the touch counts of the Tactile and Tactile & Visual column groups.
+    Returns:
+        The table; cells a model was not evaluated in are ``-``.
+    """
+    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    header = ["Model", "Visual"] + [f"Tactile {k}" for k in touches] + [f"Tactile & Visual {k}" for k in touches]
+    names = [str(r["name"]) for r in recon]
+    duplicates = {n for n in names if names.count(n) > 1}
+    rows: list[list[str]] = []
+    starred = False
+    for r in recon:
+        visual = _chamfer(r, "visual")
+        visual_cell = _fmt(visual)
+        if visual is not None and r.get("modality") == "tactile_visual":
+            visual_cell += "*"
+            starred = True
+        row = [_label(r, duplicates), visual_cell]
+        row += [_fmt(_chamfer(r, f"tactile@{k}")) for k in touches]
+        row += [_fmt(_chamfer(r, f"tv@{k}")) for k in touches]
+        rows.append(row)
+    notes = [
+        "Chamfer distance (x1e-3) between 1,000 points sampled on the predicted and ground-truth surfaces; lower is better."
+    ]
+    by_name = {str(r["name"]): r for r in recon}
+    if "full" in by_name and ("visual_only" in by_name or "tactile_only" in by_name):
+        full = by_name["full"]
+        vis = by_name.get("visual_only")
+        tac = by_name.get("tactile_only")
+        row = ["Ours (paper layout)", _fmt(_chamfer(vis, "visual")) if vis else "-"]
+        row += [_fmt(_chamfer(tac, f"tactile@{k}")) if tac else "-" for k in touches]
+        row += [_fmt(_chamfer(full, f"tv@{k}")) for k in touches]
+        rows.append(row)
+        notes.append(
+            "Ours (paper layout): Visual from visual_only, Tactile from tactile_only, Tactile & Visual from full."
+        )
+    if starred:
+        notes.append(VISUAL_FOOTNOTE)
+    return Table("Table 3: mesh reconstruction, chamfer x1e-3", header, rows, notes)
+
+
+def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | None = None) -> Table:
+    """Table 4: per-class chamfer (x1e-3) and class average, one row per model (its :func:`primary_mode`).
+
+    Args:
+        results: result dicts; classification results are skipped.
+        classes: column order; default the classes found in the results (the paper's 10 first, in its order).
+    """
+    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    if classes is not None:
+        cols = [str(c) for c in classes]
+    else:  # the classes present, in the paper's order first
+        found: list[str] = []
+        for r in recon:
+            for entry in r["modes"].values():
+                found += [str(c) for c in entry.get("per_class", {}) if str(c) not in found]
+        cols = [c for c in DEFAULT_CLASSES if c in found] + [c for c in found if c not in DEFAULT_CLASSES]
+        cols = cols or list(DEFAULT_CLASSES)
+    names = [str(r["name"]) for r in recon]
+    duplicates = {n for n in names if names.count(n) > 1}
+    rows: list[list[str]] = []
+    mode_notes: list[str] = []
+    for r in recon:
+        mode = primary_mode(r)
+        per_class = {str(k): float(v) for k, v in r["modes"][mode].get("per_class", {}).items()}
+        values = [per_class.get(c) for c in cols]
+        present = [v for v in values if v is not None]
+        avg = sum(present) / len(present) if present else None
+        label = _label(r, duplicates)
+        rows.append([label] + [_fmt(v) for v in values] + [_fmt(avg)])
+        mode_notes.append(f"{label}: {mode}")
+    notes = [
+        "Chamfer x1e-3 per class; Average is the mean over the classes present ('-' = class not in the test split).",
+        "Mode per row (tv@k = view + k touches, tactile@k = blank view + k touches): " + "; ".join(mode_notes),
+    ]
+    return Table("Table 4: per-class chamfer x1e-3", ["Model"] + cols + ["Average"], rows, notes)
+
+
+def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
+    """Table 2: classification accuracy (%) by number of touches, mean +- std over the runs (seeds).
+
+    Each classification result contributes its accuracy for every touch count it was evaluated with; the std
+    is the sample standard deviation (ddof=1) over runs, 0 for a single run; ``n`` runs are reported.
+    """
+    cls = [r for r in _check_results(results) if r["task"] == "classification"]
+    header = [f"{k}-touch" for k in touches]
+    cells: list[str] = []
+    counts: list[int] = []
+    for k in touches:
+        values = [100.0 * float(r["accuracy"][str(k)]) for r in cls if str(k) in r["accuracy"]]
+        counts.append(len(values))
+        if not values:
+            cells.append("-")
+            continue
+        mean = sum(values) / len(values)
+        std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
+        cells.append(f"{mean:.1f} +- {std:.1f}")
+    rows = [cells] if cls else []
+    notes = [
+        "Accuracy (%) over the test split; runs per column: " + ", ".join(f"{k}: {n}" for k, n in zip(touches, counts))
+    ]
+    return Table("Table 2: tactile classification accuracy (%)", header, rows, notes)
+
+
+def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | None = None) -> dict[str, Table]:
+    """The tables the results allow: ``table3``/``table4`` for reconstruction, ``table2`` for classification."""
+    results = _check_results(results)
+    tables: dict[str, Table] = {}
+    if any(r["task"] == "reconstruction" for r in results):
+        tables["table3"] = build_table3(results)
+        tables["table4"] = build_table4(results, classes)
+    if any(r["task"] == "classification" for r in results):
+        tables["table2"] = build_table2(results)
+    return tables
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]:
+    """Write every table as ``<key>.md`` and ``<key>.csv`` plus ``tables.md`` (all of them) into ``out_dir``."""
+    out_dir = Path(out_dir)
+    written: list[Path] = []
+    for key, table in tables.items():
+        written.append(atomic_write_text(out_dir / f"{key}.md", table.to_markdown()))
+        written.append(atomic_write_text(out_dir / f"{key}.csv", table.to_csv()))
+    written.append(atomic_write_text(out_dir / "tables.md", format_tables(tables)))
+    return written
+
+
+def format_tables(tables: Mapping[str, Table]) -> str:
+    """All tables as one Markdown text (Table 2, then 3, then 4)."""
+    order = ["table2", "table3", "table4"]
+    keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
+    return "\n".join(tables[k].to_markdown() for k in keys)
