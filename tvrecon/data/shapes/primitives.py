@@ -118,21 +118,90 @@ def lathe(profile: ArrayLike, sections: int = SECTIONS) -> trimesh.Trimesh:
 
 
 def radial_profile(z: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Closed lathe profile (n+2, 2) for a solid with outer radius ``r`` (n,) at heights ``z`` (n,), capped on the axis."""
+    """Lathe profile (n+2, 2) of a solid with outer radius ``r`` (n,) at heights ``z`` (n,), closed on the axis."""
     return np.concatenate([[[0.0, z[0]]], np.stack([r, z], axis=1), [[0.0, z[-1]]]], axis=0)
 
 
-def shell_profile(z: np.ndarray, r: np.ndarray, wall: float, floor: float) -> np.ndarray:
-    """Lathe profile (m, 2) of an open-top vessel (cup, bowl): outer radius ``r`` (n,) at heights ``z`` (n,) rising,
-    wall thickness ``wall`` measured horizontally, solid floor of thickness ``floor`` at the bottom."""
-    z0, z1 = float(z[0]), float(z[-1])
-    outer = np.stack([r, z], axis=1)
-    inner_mask = z >= z0 + floor
-    zi = np.concatenate([[z0 + floor], z[inner_mask]])
-    ri = np.interp(zi, z, r) - wall
-    ri = np.maximum(ri, wall * 0.5)
-    inner = np.stack([ri, zi], axis=1)[::-1]  # from the inner rim down to the floor
-    return np.concatenate([[[0.0, z0]], outer, inner, [[0.0, z0 + floor]]], axis=0)
+def _crossing(p: np.ndarray, q: np.ndarray, coord: int, value: float) -> np.ndarray:
+    t = (value - p[coord]) / (q[coord] - p[coord])
+    return p + t * (q - p)
+
+
+def vessel(
+    r: np.ndarray, z: np.ndarray, thickness: float, sections: int = SECTIONS
+) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+    """Open-top vessel (bowl, cup, plate) from its outer profile.
+
+    ``r`` (n,) and ``z`` (n,) trace the outer surface from the bottom centre (r[0] = 0) to the rim, both
+    non-decreasing. The inner surface is the outer one shifted by (-thickness, +thickness) in (r, z), which keeps a
+    normal wall thickness >= ``thickness`` everywhere and can never self-intersect. Returns (shell, cavity): the
+    watertight vessel and the watertight solid of its inner space extended above the rim (to cut handles with).
+    """
+    outer = np.stack([np.asarray(r, dtype=float), np.asarray(z, dtype=float)], axis=1)
+    if outer[0, 0] != 0.0 or np.any(np.diff(outer, axis=0) < -1e-12):
+        raise ValueError("vessel profile must start on the axis (r[0] == 0) with non-decreasing r and z")
+    h = outer[-1, 1]
+    inner = outer + np.array([-thickness, thickness])
+    i = int(np.argmax(inner[:, 0] > 0))
+    j = int(np.nonzero(inner[:, 1] < h)[0][-1])
+    if i == 0 or j <= i or inner[-1, 1] <= h:
+        raise ValueError("vessel is too thin or too shallow for the requested wall thickness")
+    start = _crossing(inner[i - 1], inner[i], 0, 0.0)
+    end = _crossing(inner[j], inner[j + 1], 1, h)
+    inner_curve = np.concatenate([[start], inner[i : j + 1], [end]], axis=0)
+    shell = lathe(np.concatenate([outer, inner_curve[::-1]], axis=0), sections=sections)
+    top = h + 10.0 * thickness + 1.0
+    cavity_profile = np.concatenate([inner_curve, [[end[0], top], [0.0, top]]], axis=0)
+    cavity = lathe(cavity_profile, sections=sections)
+    return shell, cavity
+
+
+def tube(
+    path: ArrayLike, radii: ArrayLike, sides: int = 24, lobes: int = 0, lobe_depth: float = 0.0
+) -> trimesh.Trimesh:
+    """Watertight tube along a 3D polyline ``path`` (n,3) with per-point ``radii`` (n,), flat-capped at both ends.
+
+    Cross-sections are circles (or ``lobes``-fold rounded polygons, radius modulated by ``lobe_depth``), framed by
+    parallel transport. The path's curvature radius must exceed the tube radius.
+    """
+    p = np.asarray(path, dtype=float)
+    rad = np.asarray(radii, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2 or rad.shape != (len(p),):
+        raise ValueError(f"tube path must be (n,3) with radii (n,), got {p.shape} and {rad.shape}")
+    tang = np.gradient(p, axis=0)
+    tang /= np.linalg.norm(tang, axis=1, keepdims=True)
+    ref = np.array([0.0, 0.0, 1.0]) if abs(tang[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    normal = np.cross(tang[0], ref)
+    normal /= np.linalg.norm(normal)
+    normals = [normal]
+    for k in range(1, len(p)):
+        n = normals[-1] - np.dot(normals[-1], tang[k]) * tang[k]
+        normals.append(n / np.linalg.norm(n))
+    nrm = np.array(normals)
+    bin_ = np.cross(tang, nrm)
+    theta = np.linspace(0.0, 2 * np.pi, sides, endpoint=False)
+    shape = 1.0 + lobe_depth * np.cos(lobes * theta) if lobes else np.ones(sides)
+    ring = (np.cos(theta) * shape)[None, :, None] * nrm[:, None, :] + (np.sin(theta) * shape)[None, :, None] * bin_[
+        :, None, :
+    ]
+    verts = (p[:, None, :] + rad[:, None, None] * ring).reshape(-1, 3)
+    n, m = len(p), sides
+    faces = []
+    for k in range(n - 1):
+        a = k * m + np.arange(m)
+        b = k * m + (np.arange(m) + 1) % m
+        faces += np.stack([a, b, b + m], axis=1).tolist() + np.stack([a, b + m, a + m], axis=1).tolist()
+    c0, c1 = len(verts), len(verts) + 1
+    verts = np.concatenate([verts, p[:1], p[-1:]], axis=0)
+    ar = np.arange(m)
+    faces += np.stack([np.full(m, c0), (ar + 1) % m, ar], axis=1).tolist()
+    last = (n - 1) * m
+    faces += np.stack([np.full(m, c1), last + ar, last + (ar + 1) % m], axis=1).tolist()
+    mesh = trimesh.Trimesh(verts, np.asarray(faces), process=True)
+    trimesh.repair.fix_winding(mesh)
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
 
 
 def extrude(shape: BaseGeometry, height: float, z_center: float = 0.0) -> trimesh.Trimesh:
@@ -164,6 +233,24 @@ def union(meshes: Sequence[trimesh.Trimesh]) -> trimesh.Trimesh:
 def difference(base: trimesh.Trimesh, cutters: Sequence[trimesh.Trimesh]) -> trimesh.Trimesh:
     """Boolean difference ``base - union(cutters)`` (manifold3d engine)."""
     return trimesh.boolean.difference([base, *cutters], engine="manifold")
+
+
+def refine(mesh: trimesh.Trimesh, max_edge: float) -> trimesh.Trimesh:
+    """Crack-free subdivision (manifold3d ``refine_to_length``) so that no edge is longer than ``max_edge``."""
+    import manifold3d
+
+    man = manifold3d.Manifold(
+        manifold3d.Mesh(
+            vert_properties=np.asarray(mesh.vertices, dtype=np.float32),
+            tri_verts=np.asarray(mesh.faces, dtype=np.uint32),
+        )
+    )
+    if man.status() != manifold3d.Error.NoError:
+        raise ValueError(f"refine needs a watertight manifold mesh, manifold3d says {man.status()}")
+    out = man.refine_to_length(max_edge).to_mesh()
+    return trimesh.Trimesh(
+        np.asarray(out.vert_properties[:, :3], dtype=np.float64), np.asarray(out.tri_verts), process=False
+    )
 
 
 def normalize(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -214,8 +301,7 @@ def _largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 def finalize(parts: trimesh.Trimesh | Sequence[trimesh.Trimesh], name: str = "shape") -> trimesh.Trimesh:
     """Union the parts, check watertightness (voxel remesh fallback), orient outwards and normalize to the unit box."""
     mesh = union(parts if isinstance(parts, Sequence) else [parts])
-    mesh.merge_vertices()
-    mesh.remove_unreferenced_vertices()
+    # no merge_vertices here: manifold3d output is already indexed, and merging close vertices can break manifoldness
     if not mesh.is_watertight or mesh.body_count != 1:
         log.warning(
             "shape %r: union gave %d bodies, watertight=%s; voxel remesh", name, mesh.body_count, mesh.is_watertight

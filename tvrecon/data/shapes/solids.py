@@ -19,7 +19,7 @@ from tvrecon.data.shapes.registry import register
 
 @register("cube")
 def cube(rng: np.random.Generator) -> list[trimesh.Trimesh]:
-    """Box with nearly equal sides and randomly rounded edges (rounding = union of boxes, edge cylinders, corner balls)."""
+    """Box with nearly equal sides and randomly rounded edges (union of boxes, edge cylinders and corner balls)."""
     half = np.array([1.0, uniform(rng, 0.85, 1.0), uniform(rng, 0.85, 1.0)])
     rad = uniform(rng, 0.0, 0.2)
     if rad < 0.04:
