@@ -202,7 +202,7 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
         row += [_fmt(_chamfer(r, f"tv@{k}")) for k in touches]
         rows.append(row)
     notes = [
-        "Chamfer distance (x1e-3) between 1,000 points sampled on the predicted and ground-truth surfaces; lower is better."
+        "Chamfer distance x1e-3 (1,000 points sampled on the predicted and ground-truth surfaces), lower is better."
     ]
     by_name = {str(r["name"]): r for r in recon}
     if "full" in by_name and ("visual_only" in by_name or "tactile_only" in by_name):
