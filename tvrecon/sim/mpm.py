@@ -1,0 +1,400 @@
+"""MLS-MPM solver (Hu et al. 2018; paper eq. 5-12) on a sparse local grid, in pure torch.
+
+Conventions (the simulator contract of DESIGN.md): domain ``[0, 1)^3``, ``dx = 1 / n_grid``, node ``I`` at ``I dx``;
+quadratic B-spline weights with ``base = floor(x / dx - 0.5)``, ``fx = x / dx - base``, 27 nodes per particle.
+
+Speed: the grid is a block per scene aligned to the global lattice and covering only the bounding box of that scene's
+particles (cost follows the particles, not ``n_grid^3``); mass and momentum are scattered in one fused ``(N, 4)``
+``index_add_``; the 27-node sums are small matrix products against the precomputed offsets; the polar decomposition
+is an analytic Newton iteration (``materials.polar_decomposition``). With no input requiring grad the step runs under
+``torch.no_grad``; otherwise the same code is differentiated by autograd.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from .colliders import Collider
+from .materials import fixed_corotated_kirchhoff, lame_parameters, polar_decomposition
+
+__all__ = ["MPMConfig", "ParticleState", "MLSMPM", "cfl_dt"]
+
+_FIX_HINT = "reduce dt / hand speed, increase n_grid"
+_MAX_GRID_NODES = 64_000_000
+
+
+@dataclass
+class MPMConfig:
+    """Solver parameters.
+
+    n_grid: cells across the unit domain, ``dx = 1 / n_grid``.
+    dt: time step; None -> CFL rule ``cfl_dt(cfg)`` from E, nu, rho, dx.
+    E, nu: Young's modulus and Poisson ratio (python floats or 0-dim tensors that may require grad).
+    rho: density used by the CFL rule (particle masses live in ``ParticleState``).
+    friction: Coulomb coefficient on collider nodes (0 = frictionless slip).
+    damping: viscous damping of grid velocity, ``v_i *= exp(-damping dt)``.
+    cfl: Courant number of the CFL rule.
+    """
+
+    n_grid: int = 128
+    dt: float | None = None
+    E: float | Tensor = 3.0
+    nu: float | Tensor = 0.25
+    rho: float = 1.0
+    friction: float = 0.0
+    damping: float = 0.0
+    cfl: float = 0.3
+
+
+def cfl_dt(cfg: MPMConfig) -> float:
+    """CFL time step ``dt = cfl * dx / c`` with the P-wave speed ``c = sqrt((lambda + 2 mu) / rho)``.
+
+    Args:
+        cfg: solver config (E, nu may be tensors: their current values are used).
+
+    Returns:
+        dt in seconds (python float).
+    """
+    if cfg.n_grid < 4:
+        raise ValueError(f"n_grid must be >= 4, got {cfg.n_grid}")
+    if not cfg.rho > 0:
+        raise ValueError(f"rho must be > 0, got {cfg.rho}")
+    if not 0 < cfg.cfl <= 1:
+        raise ValueError(f"cfl must be in (0, 1], got {cfg.cfl}")
+    mu, lam = lame_parameters(cfg.E, cfg.nu)
+    mu, lam = float(mu), float(lam)
+    c = math.sqrt((lam + 2.0 * mu) / cfg.rho)
+    return cfg.cfl * (1.0 / cfg.n_grid) / c
+
+
+@dataclass
+class ParticleState:
+    """Particle state of MLS-MPM (P particles).
+
+    x: (P, 3) float positions (domain units, nominally in [0, 1)^3).
+    v: (P, 3) velocities.
+    C: (P, 3, 3) affine velocity field (APIC / MLS, paper eq. 10).
+    F: (P, 3, 3) deformation gradient (paper eq. 1).
+    volume: (P,) initial volume V0.
+    mass: (P,) mass rho * V0.
+    batch: (P,) int64 scene index for batched independent scenes (None = one scene).
+    """
+
+    x: Tensor
+    v: Tensor
+    C: Tensor
+    F: Tensor
+    volume: Tensor
+    mass: Tensor
+    batch: Tensor | None = None
+
+    @classmethod
+    def create(
+        cls,
+        x0: Tensor,
+        v0: Tensor | None,
+        volume: float | Tensor,
+        rho: float = 1.0,
+        batch: Tensor | None = None,
+    ) -> ParticleState:
+        """Rest state: F = I, C = 0, mass = rho * volume.
+
+        Args:
+            x0: (P, 3) float positions.
+            v0: (P, 3) velocities, or None for zeros.
+            volume: scalar or (P,) initial particle volume V0.
+            rho: density.
+            batch: (P,) integer scene index in [0, B) or None.
+        """
+        if not isinstance(x0, Tensor) or x0.dim() != 2 or x0.shape[1] != 3:
+            raise ValueError(f"x0 must be a (P, 3) tensor, got {tuple(getattr(x0, 'shape', ()))}")
+        if not x0.is_floating_point():
+            raise ValueError(f"x0 must be a float tensor, got {x0.dtype}")
+        P = x0.shape[0]
+        if P == 0:
+            raise ValueError("x0 is empty: need at least one particle")
+        if not bool(torch.isfinite(x0).all()):
+            raise ValueError("x0 contains NaN or inf positions")
+        if v0 is None:
+            v0 = torch.zeros_like(x0)
+        elif not isinstance(v0, Tensor) or v0.shape != x0.shape:
+            raise ValueError(f"v0 must be a (P, 3) tensor like x0 {tuple(x0.shape)}, got {tuple(v0.shape)}")
+        vol = torch.as_tensor(volume, dtype=x0.dtype, device=x0.device)
+        if vol.dim() == 0:
+            vol = vol.expand(P).clone()
+        if vol.shape != (P,):
+            raise ValueError(f"volume must be a scalar or a (P,) tensor with P={P}, got {tuple(vol.shape)}")
+        if not bool((vol > 0).all()):
+            raise ValueError("volume must be > 0")
+        if not rho > 0:
+            raise ValueError(f"rho must be > 0, got {rho}")
+        if batch is not None:
+            if not isinstance(batch, Tensor) or batch.shape != (P,) or batch.is_floating_point():
+                raise ValueError(f"batch must be a (P,) integer tensor, got {getattr(batch, 'shape', batch)}")
+            batch = batch.to(device=x0.device, dtype=torch.int64)
+            if bool((batch < 0).any()):
+                raise ValueError("batch indices must be >= 0")
+        eye = torch.eye(3, dtype=x0.dtype, device=x0.device).expand(P, 3, 3).clone()
+        return cls(
+            x=x0,
+            v=v0.to(x0.dtype),
+            C=torch.zeros(P, 3, 3, dtype=x0.dtype, device=x0.device),
+            F=eye,
+            volume=vol,
+            mass=rho * vol,
+            batch=batch,
+        )
+
+    @property
+    def num_scenes(self) -> int:
+        """Number of independent scenes B (1 when batch is None)."""
+        return 1 if self.batch is None else int(self.batch.max()) + 1
+
+
+def _offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
+    """(27, 3) node offsets (i, j, k) in {0,1,2}^3, i slowest."""
+    r = torch.arange(3, device=device)
+    o = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(27, 3)
+    return o.to(dtype)
+
+
+class MLSMPM:
+    """MLS-MPM stepper implementing the simulator contract (paper eq. 5-12).
+
+    Args:
+        cfg: solver config.
+        device: device of internal constants (states may live on it).
+
+    After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
+    (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used.
+    """
+
+    def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu") -> None:
+        if cfg.n_grid < 4:
+            raise ValueError(f"n_grid must be >= 4, got {cfg.n_grid}")
+        if cfg.friction < 0:
+            raise ValueError(f"friction must be >= 0, got {cfg.friction}")
+        if cfg.damping < 0:
+            raise ValueError(f"damping must be >= 0, got {cfg.damping}")
+        self.cfg = cfg
+        self.device = torch.device(device)
+        self.dx = 1.0 / cfg.n_grid
+        self.inv_dx = float(cfg.n_grid)
+        self.mu, self.lam = lame_parameters(cfg.E, cfg.nu)
+        if cfg.dt is None:
+            self.dt = cfl_dt(cfg)
+        else:
+            if not cfg.dt > 0:
+                raise ValueError(f"dt must be > 0, got {cfg.dt}")
+            self.dt = float(cfg.dt)
+        self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
+        self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
+
+    # ------------------------------------------------------------------ helpers
+    def _constants(self, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+        key = (dtype, device)
+        if key not in self._consts:
+            o = _offsets(device, dtype)  # (27, 3)
+            o_aug_t = torch.cat([torch.ones(27, 1, dtype=dtype, device=device), o], 1)  # (27, 4): [1, o]
+            self._consts[key] = (o, o_aug_t, o.to(torch.int64))
+        return self._consts[key]
+
+    def _needs_grad(self, state: ParticleState, hand_velocity: Tensor | None, alpha: Tensor | None) -> bool:
+        if not torch.is_grad_enabled():
+            return False
+        ts = [state.x, state.v, state.C, state.F, state.volume, state.mass, hand_velocity, alpha, self.mu, self.lam]
+        return any(isinstance(t, Tensor) and t.requires_grad for t in ts)
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self,
+        state: ParticleState,
+        collider: Collider | Sequence[Collider | None] | None = None,
+        hand_velocity: Tensor | None = None,
+        alpha: Tensor | None = None,
+    ) -> ParticleState:
+        """Advance the state by one time step ``self.dt``.
+
+        Args:
+            state: particle state (P particles, B scenes).
+            collider: None, one collider for every scene, or a sequence of B colliders (None entries allowed).
+            hand_velocity: (3,) or (P, 3) robot-hand velocity v_r of eq. 11 (None = zero).
+            alpha: (P,) weights in [0, 1] of eq. 11 (1 = follow the grid, 0 = follow the hand; None = all ones).
+
+        Returns:
+            The new ParticleState (same batch, volume and mass tensors).
+        """
+        x = state.x
+        P = x.shape[0]
+        dtype, device = x.dtype, x.device
+        if hand_velocity is not None:
+            hand_velocity = torch.as_tensor(hand_velocity, dtype=dtype, device=device)
+            if hand_velocity.shape not in ((3,), (P, 3)):
+                raise ValueError(f"hand_velocity must be (3,) or (P, 3) with P={P}, got {tuple(hand_velocity.shape)}")
+        if alpha is not None:
+            alpha = torch.as_tensor(alpha, dtype=dtype, device=device)
+            if alpha.shape != (P,):
+                raise ValueError(f"alpha must be a (P,) tensor with P={P}, got {tuple(alpha.shape)}")
+        B = state.num_scenes
+        if collider is None or not isinstance(collider, Sequence):
+            colliders: list[Collider | None] = [collider] * B
+        else:
+            colliders = list(collider)
+            if len(colliders) != B:
+                raise ValueError(f"collider sequence must have one entry per scene (B={B}), got {len(colliders)}")
+        if self._needs_grad(state, hand_velocity, alpha):
+            return self._step(state, colliders, hand_velocity, alpha, B)
+        with torch.no_grad():
+            return self._step(state, colliders, hand_velocity, alpha, B)
+
+    def _layout(self, base_f: Tensor, batch: Tensor | None, B: int) -> tuple[Tensor, Tensor, list[int]]:
+        """Local grid blocks: per-scene origin lo (B, 3) int64, linear node index of each particle's base node (P,),
+        block dims D [3]. Raises FloatingPointError on a non-finite or exploded state."""
+        if batch is None:
+            lo_f = base_f.amin(0, keepdim=True)
+            hi_f = base_f.amax(0, keepdim=True)
+        else:
+            idx = batch[:, None].expand(-1, 3)
+            lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
+            hi_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amax", include_self=False)
+        ext = hi_f - lo_f + 3.0  # nodes per axis: base .. base + 2
+        bounds = torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)]).tolist()
+        if not all(math.isfinite(b) for b in bounds):
+            raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {_FIX_HINT}")
+        D = [int(d) for d in bounds[:3]]
+        if B * D[0] * D[1] * D[2] > _MAX_GRID_NODES:
+            raise FloatingPointError(f"MPM state exploded: particles spread over {D} grid cells per scene; {_FIX_HINT}")
+        lo = lo_f.to(torch.int64)  # (B, 3)
+        base = base_f.to(torch.int64)
+        local = base - (lo if batch is None else lo[batch])  # (P, 3)
+        lin = (local[:, 0] * D[1] + local[:, 1]) * D[2] + local[:, 2]
+        if batch is not None:
+            lin = lin + batch * (D[0] * D[1] * D[2])
+        return lo, lin, D
+
+    def _step(
+        self,
+        state: ParticleState,
+        colliders: list[Collider | None],
+        hand_velocity: Tensor | None,
+        alpha: Tensor | None,
+        B: int,
+    ) -> ParticleState:
+        x, v, C, F = state.x, state.v, state.C, state.F
+        P = x.shape[0]
+        dtype, device = x.dtype, x.device
+        dx, inv_dx, dt = self.dx, self.inv_dx, self.dt
+        o, o_aug_t, o_int = self._constants(dtype, device)
+
+        # ---- particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights
+        Xg = x * inv_dx
+        base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
+        lo, lin, D = self._layout(base_f, state.batch, B)
+        fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
+        w_axis = torch.stack([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2], 2)  # (P,3,3)
+        w = (w_axis[:, 0, :, None, None] * w_axis[:, 1, None, :, None] * w_axis[:, 2, None, None, :]).reshape(P, 27)
+        strides = torch.tensor([D[1] * D[2], D[2], 1], device=device, dtype=torch.int64)
+        node = (lin[:, None] + (o_int * strides).sum(1)[None, :]).reshape(-1)  # (P*27,)
+        n_nodes = B * D[0] * D[1] * D[2]
+
+        # ---- stress (eq. 4) and the affine momentum matrix A = m C - (4 dt V0 / dx^2) P F^T (eq. 6)
+        R = polar_decomposition(F)
+        tau = fixed_corotated_kirchhoff(F, self.mu, self.lam, R)  # (P, 3, 3) = P(F) F^T
+        m = state.mass
+        A = m[:, None, None] * C - ((4.0 * dt * inv_dx * inv_dx) * state.volume)[:, None, None] * tau
+        # per node: w * (m v + A (x_i - x_p)) with x_i - x_p = (o - fx) dx  ->  w * M [1, o]^T
+        mv0 = m[:, None] * v - dx * torch.matmul(A, fx[:, :, None])[:, :, 0]  # (P, 3)
+        M = torch.cat(
+            [
+                torch.cat([m[:, None, None], torch.zeros_like(mv0)[:, None, :]], 2),  # (P, 1, 4)
+                torch.cat([mv0[:, :, None], dx * A], 2),  # (P, 3, 4)
+            ],
+            1,
+        )  # (P, 4, 4)
+        contrib = torch.matmul(o_aug_t, M.transpose(1, 2)) * w[:, :, None]  # (P, 27, 4): (m, m v) per node
+
+        # ---- P2G (eq. 5-6): one fused scatter of (mass, momentum)
+        grid = torch.zeros(n_nodes, 4, dtype=dtype, device=device).index_add(0, node, contrib.reshape(-1, 4))
+        gm = grid[:, 0]
+        has_mass = gm > 0
+        gv = grid[:, 1:] / torch.where(has_mass, gm, torch.ones_like(gm))[:, None]  # eq. 7 (zero where m = 0)
+
+        # ---- grid operations: damping, colliders (momentum removed -> force)
+        if self.cfg.damping > 0:
+            gv = gv * math.exp(-self.cfg.damping * dt)
+        gv, force = self._apply_colliders(gv, gm, colliders, lo, D, B, dtype, device)
+        self.last_force = force
+        vmax = float(gv.detach().abs().amax()) if n_nodes else 0.0
+        if not vmax * dt <= dx:  # also catches NaN
+            raise FloatingPointError(
+                f"MPM state exploded (grid speed {vmax:.3g} moves {vmax * dt / dx:.3g} cells per step, NaN or > 1): "
+                f"{_FIX_HINT}"
+            )
+
+        # ---- G2P (eq. 11-14)
+        vg = gv.index_select(0, node).reshape(P, 27, 3) * w[:, :, None]  # (P, 27, 3)
+        S = torch.matmul(vg.transpose(1, 2), o_aug_t)  # (P, 3, 4): [sum w v_i, sum w v_i o^T]
+        v_pic = S[:, :, 0]
+        C_new = (4.0 * inv_dx) * (S[:, :, 1:] - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
+        if alpha is None:  # alpha = 1 everywhere: the hand velocity has no weight
+            v_new = v_pic
+        else:
+            hv = torch.zeros(3, dtype=dtype, device=device) if hand_velocity is None else hand_velocity
+            v_new = alpha[:, None] * v_pic + (1.0 - alpha[:, None]) * hv  # eq. 11
+        x_new = x + dt * v_new  # eq. 13
+        F_new = F + dt * torch.matmul(C_new, F)  # eq. 14: (I + dt C) F
+        return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
+
+    def _apply_colliders(
+        self,
+        gv: Tensor,
+        gm: Tensor,
+        colliders: list[Collider | None],
+        lo: Tensor,
+        D: list[int],
+        B: int,
+        dtype: torch.dtype,
+        device: torch.device,
+    ) -> tuple[Tensor, Tensor]:
+        """Remove the velocity component into each collider on nodes with sdf < 0 (Coulomb friction optional).
+
+        Returns the new (N, 3) grid velocity and the (B, 3) force on the particles (sum m dv / dt per scene)."""
+        force = torch.zeros(B, 3, dtype=dtype, device=device)
+        if all(c is None for c in colliders):
+            return gv, force
+        nb = D[0] * D[1] * D[2]
+        a0 = torch.arange(D[0], device=device)
+        a1 = torch.arange(D[1], device=device)
+        a2 = torch.arange(D[2], device=device)
+        local = torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(nb, 3)  # (nb, 3)
+        lo_list = lo.tolist()
+        pieces = []
+        forces = []
+        mu_f = self.cfg.friction
+        for b in range(B):
+            vb = gv[b * nb : (b + 1) * nb]
+            col = colliders[b]
+            if col is None:
+                pieces.append(vb)
+                forces.append(torch.zeros(3, dtype=dtype, device=device))
+                continue
+            mb = gm[b * nb : (b + 1) * nb]
+            pos = (local + torch.tensor(lo_list[b], device=device)).to(dtype) * self.dx  # (nb, 3) node positions
+            sdf = col.sdf(pos)
+            n = col.normal(pos)
+            vn = (vb * n).sum(1, keepdim=True)  # (nb, 1)
+            hit = (sdf < 0)[:, None] & (vn < 0) & (mb > 0)[:, None]
+            vt = vb - vn * n
+            if mu_f > 0:
+                vt_norm = vt.norm(dim=1, keepdim=True)
+                safe = torch.where(vt_norm > 0, vt_norm, torch.ones_like(vt_norm))
+                vt = vt * torch.clamp(1.0 + mu_f * vn / safe, min=0.0)
+            vb_new = torch.where(hit, vt, vb)
+            pieces.append(vb_new)
+            forces.append((mb[:, None] * (vb_new - vb)).sum(0) / self.dt)
+        return torch.cat(pieces, 0), torch.stack(forces, 0)
