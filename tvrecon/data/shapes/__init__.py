@@ -6,7 +6,7 @@ Public API::
     make_shape(name, seed=0)          # watertight, centred, max extent 1.0
 """
 
-from tvrecon.data.shapes import recon, solids  # noqa: F401  (registers builders)
+from tvrecon.data.shapes import household, recon, solids, tools  # noqa: F401  (registers builders)
 from tvrecon.data.shapes.registry import CLASSES, RECON_CLASSES, available_classes, make_shape
 
 __all__ = ["CLASSES", "RECON_CLASSES", "available_classes", "make_shape"]
