@@ -1,0 +1,501 @@
+"""Pick-and-place with EIP tactile fingers: a Panda on a table picks an object, lifts, carries, places, releases.
+
+Run::
+
+    python -m tvrecon.robot.pick_place object=can
+    python -m tvrecon.robot.pick_place object=/path/to/mesh.obj scene.object_size=0.09 out_dir=outputs/robot_mesh
+
+The object is located from the scene's own RGB-D + segmentation camera (no ground-truth pose), the grasp is
+planned from that point cloud, the arm follows Cartesian waypoints through pybullet's inverse kinematics, and each
+finger's :class:`~tvrecon.robot.finger.TactileFinger` turns its pybullet contacts into EIP tactile images in
+every control phase. Writes ``pick_place.gif``, ``pick_place_strip.png`` and ``pick_place_log.npz``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import trimesh
+from tqdm.auto import tqdm
+
+from tvrecon.robot.finger import FingerReading, PadConfig, TactileFinger
+from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
+from tvrecon.robot.scene import (
+    PANDA_ARM_JOINTS,
+    PANDA_FINGER_JOINTS,
+    PANDA_FINGER_LINKS,
+    PANDA_GRASP_LINK,
+    PANDA_MAX_OPENING,
+    PANDA_REST,
+    Scene,
+    SceneConfig,
+)
+
+__all__ = ["PHASES", "PickPlaceConfig", "PickPlaceResult", "load_object_mesh", "run_pick_place", "main"]
+
+PHASES = ("approach", "contact", "squeeze", "lift", "carry", "place", "release")
+_ARM_FORCES = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+_LOWER = [-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671, 0.0, 0.0]
+_UPPER = [2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671, 0.04, 0.04]
+_RANGES = [u - lo for u, lo in zip(_UPPER, _LOWER)]
+_REST = list(PANDA_REST) + [0.02, 0.02]
+
+
+@dataclass
+class PickPlaceConfig:
+    """Everything the demo needs (mirrors ``configs/robot/pick_place.yaml``).
+
+    object: a procedural class name (``tvrecon.data.shapes``) or a path to a mesh file trimesh can load.
+    place_xy: (2,) where the object is put down. lift_height / carry_height: metres above the grasp height.
+    speed: Cartesian hand speed, m/s. grip_force: finger motor force, N. frame_every: simulation steps per logged
+    frame. render_size: (W, H) of the scene frames. out_dir: where the GIF, strip and log go.
+    """
+
+    object: str = "can"
+    seed: int = 0
+    mesh: trimesh.Trimesh | None = None  # a mesh given directly through the Python API (overrides ``object``)
+    place_xy: tuple[float, float] = (0.5, 0.15)
+    approach_height: float = 0.10
+    lift_height: float = 0.12
+    speed: float = 0.2
+    close_speed: float = 0.05
+    grip_force: float = 40.0
+    squeeze_steps: int = 90
+    settle_steps: int = 40
+    frame_every: int = 8
+    contact_force: float = 6.0
+    render: bool = True
+    render_size: tuple[int, int] = (256, 192)
+    render_eye: tuple[float, float, float] = (0.95, -0.42, 0.98)
+    render_target: tuple[float, float, float] = (0.5, 0.0, 0.73)
+    out_dir: str = "outputs/robot"
+    write_gif: bool = True
+    write_strip: bool = True
+    progress: bool = True
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    pad: PadConfig = field(default_factory=PadConfig)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> PickPlaceConfig:
+        """Build from a plain (Hydra/OmegaConf container) dict; nested dicts fill the nested dataclasses."""
+        d = dict(d)
+        known = {f.name for f in dataclasses.fields(cls)}
+        bad = sorted(set(d) - known)
+        if bad:
+            raise ValueError(f"unknown pick_place option(s) {bad}; valid: {sorted(known)}")
+        nested = {"scene": SceneConfig, "camera": CameraConfig, "pad": PadConfig}
+        for key, typ in nested.items():
+            if key in d and isinstance(d[key], dict):
+                names = {f.name for f in dataclasses.fields(typ)}
+                bad = sorted(set(d[key]) - names)
+                if bad:
+                    raise ValueError(f"unknown {key} option(s) {bad}; valid: {sorted(names)}")
+                d[key] = typ(**{k: tuple(v) if isinstance(v, list) else v for k, v in d[key].items()})
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+@dataclass
+class PickPlaceResult:
+    """Outcome of a run: success flag, message, phase reached, output paths, timings and the per-frame log."""
+
+    success: bool
+    message: str
+    phase_reached: str
+    plan: GraspPlan | None
+    log: dict[str, np.ndarray]
+    log_path: Path | None
+    gif_path: Path | None
+    strip_path: Path | None
+    wall_time: float
+    num_presses: int
+
+
+def load_object_mesh(name_or_path: str, seed: int = 0) -> trimesh.Trimesh:
+    """A procedural class (``tvrecon.data.shapes.make_shape``) or a mesh file (anything ``trimesh.load`` reads)."""
+    path = Path(str(name_or_path)).expanduser()
+    if path.suffix and (path.exists() or os.sep in str(name_or_path)):
+        if not path.exists():
+            raise ValueError(
+                f"object mesh file {str(path)!r} does not exist: pass an existing mesh path or a class name"
+            )
+        mesh = trimesh.load(path, force="mesh")
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ValueError(f"{str(path)!r} holds no triangles: pass a triangle mesh (obj, stl, ply, glb, off)")
+        return mesh
+    from tvrecon.data.shapes import make_shape
+
+    return make_shape(str(name_or_path), seed=seed)
+
+
+def _atomic_savez(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    os.replace(tmp, path)
+
+
+class _Controller:
+    """Cartesian straight-line moves through IK + joint position control, with logging at every phase."""
+
+    def __init__(self, scene: Scene, cfg: PickPlaceConfig, fingers: tuple[TactileFinger, TactileFinger]) -> None:
+        self.scene, self.cfg, self.fingers = scene, cfg, fingers
+        self.cid, self.robot = scene.client, scene.robot
+        self.step_count = 0
+        self.records: list[dict] = []
+        self.phase = "approach"
+        self.phase_fresh = True
+        self.grip_target = PANDA_MAX_OPENING / 2
+        self.grip_force = cfg.grip_force
+        self.grip_speed = cfg.close_speed
+        view = p.computeViewMatrix(cfg.render_eye, cfg.render_target, (0, 0, 1), physicsClientId=self.cid)
+        W, H = cfg.render_size
+        proj = p.computeProjectionMatrixFOV(45.0, W / H, 0.05, 4.0, physicsClientId=self.cid)
+        self.render_mats = (view, proj)
+        self.bar = tqdm(total=None, desc="pick-place", unit="step", disable=not cfg.progress)
+
+    # ------------------------------------------------------------------ low level
+    def ik(self, pos: np.ndarray, orn: np.ndarray) -> list[float]:
+        q = p.calculateInverseKinematics(
+            self.robot,
+            PANDA_GRASP_LINK,
+            list(pos),
+            list(orn),
+            lowerLimits=_LOWER,
+            upperLimits=_UPPER,
+            jointRanges=_RANGES,
+            restPoses=_REST,
+            maxNumIterations=60,
+            residualThreshold=1e-5,
+            physicsClientId=self.cid,
+        )
+        return list(q[:7])
+
+    def command_arm(self, q: list[float]) -> None:
+        p.setJointMotorControlArray(
+            self.robot,
+            list(PANDA_ARM_JOINTS),
+            p.POSITION_CONTROL,
+            targetPositions=q,
+            forces=list(_ARM_FORCES),
+            physicsClientId=self.cid,
+        )
+
+    def command_gripper(self) -> None:
+        for j in PANDA_FINGER_JOINTS:
+            p.setJointMotorControl2(
+                self.robot,
+                j,
+                p.POSITION_CONTROL,
+                targetPosition=self.grip_target,
+                force=self.grip_force,
+                maxVelocity=self.grip_speed,
+                physicsClientId=self.cid,
+            )
+
+    def step(self) -> None:
+        self.command_gripper()
+        p.stepSimulation(physicsClientId=self.cid)
+        self.step_count += 1
+        self.bar.update(1)
+        if self.step_count % self.cfg.frame_every == 0:
+            self.record()
+
+    def set_phase(self, name: str) -> None:
+        self.phase = name
+        self.phase_fresh = True
+        self.bar.set_postfix_str(name)
+
+    # ------------------------------------------------------------------ logging
+    def render(self) -> np.ndarray:
+        W, H = self.cfg.render_size
+        if not self.cfg.render:
+            return np.zeros((H, W, 3), np.uint8)
+        img = p.getCameraImage(W, H, *self.render_mats, renderer=p.ER_TINY_RENDERER, physicsClientId=self.cid)[2]
+        return np.asarray(img, dtype=np.uint8).reshape(H, W, 4)[..., :3].copy()
+
+    def record(self) -> None:
+        readings: list[FingerReading] = [f.sense(refresh=self.phase_fresh) for f in self.fingers]
+        self.phase_fresh = False
+        obj_pos, obj_orn = self.scene.object_pose()
+        ee_pos, ee_orn = self.scene.link_pose(PANDA_GRASP_LINK)
+        self.records.append(
+            {
+                "step": self.step_count,
+                "time": self.step_count * self.scene.cfg.time_step,
+                "phase": PHASES.index(self.phase),
+                "object_pos": obj_pos,
+                "object_quat": obj_orn,
+                "ee_pos": ee_pos,
+                "ee_quat": ee_orn,
+                "finger_q": self.scene.finger_positions(),
+                "contact": np.array([r.contact for r in readings]),
+                "force": np.array([r.force for r in readings]),
+                "force_vec": np.stack([r.force_vec for r in readings]),
+                "contact_pos": np.stack([r.position for r in readings]),
+                "direction": np.stack([r.direction for r in readings]),
+                "penetration": np.array([r.penetration for r in readings]),
+                "depth": np.array([r.depth for r in readings]),
+                "simulated": np.array([r.simulated for r in readings]),
+                "tactile": np.stack([r.image for r in readings]).astype(np.float32),
+                "frame": self.render(),
+            }
+        )
+
+    # ------------------------------------------------------------------ motions
+    def move_to(self, target: np.ndarray, orn: np.ndarray, speed: float | None = None) -> None:
+        """Straight line of the grasp point from where it is to ``target`` at ``speed`` m/s, then settle."""
+        start, _ = self.scene.link_pose(PANDA_GRASP_LINK)
+        dist = float(np.linalg.norm(target - start))
+        n = max(2, int(np.ceil(dist / ((speed or self.cfg.speed) * self.scene.cfg.time_step))))
+        for k in range(1, n + 1):
+            s = k / n
+            s = s * s * (3 - 2 * s)  # smoothstep: zero velocity at both ends
+            self.command_arm(self.ik(start + s * (target - start), orn))
+            self.step()
+        q = self.ik(target, orn)
+        for _ in range(self.cfg.settle_steps):
+            self.command_arm(q)
+            self.step()
+
+    def hold(self, steps: int, q: list[float] | None = None) -> None:
+        for _ in range(steps):
+            if q is not None:
+                self.command_arm(q)
+            self.step()
+
+    def close_until_contact(self, max_steps: int) -> bool:
+        """Close both fingers slowly until both touch the object (or they are shut)."""
+        self.grip_target = 0.0
+        for _ in range(max_steps):
+            self.step()
+            if all(len(f.contacts()) > 0 for f in self.fingers):
+                return True
+            if self.scene.finger_positions().max() < 1e-3:
+                return False
+        return all(len(f.contacts()) > 0 for f in self.fingers)
+
+
+def _hand_orientation(closing_axis: np.ndarray) -> np.ndarray:
+    """xyzw quaternion of a hand pointing down (z = -world z) with its finger axis (y) along ``closing_axis``."""
+    y = np.asarray(closing_axis, dtype=np.float64)
+    z = np.array([0.0, 0.0, -1.0])
+    x = np.cross(y, z)
+    R = np.stack([x, y, z], axis=1)
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_quat()
+
+
+def run_pick_place(cfg: PickPlaceConfig | None = None, simulator: object | None = None) -> PickPlaceResult:
+    """Run the whole pick-and-place and write the outputs.
+
+    Args:
+        cfg: the demo configuration (default: a can).
+        simulator: an EIP simulator shared by both fingers (None builds one from ``cfg.pad``).
+
+    Returns:
+        A :class:`PickPlaceResult`; ``success`` is False with a clear ``message`` when the object cannot be held.
+    """
+    cfg = cfg or PickPlaceConfig()
+    t0 = time.perf_counter()
+    mesh = cfg.mesh if cfg.mesh is not None else load_object_mesh(cfg.object, cfg.seed)
+    out = Path(cfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = Scene(mesh, cfg.scene)
+    try:
+        fingers = (
+            TactileFinger(
+                scene.robot,
+                PANDA_FINGER_LINKS[0],
+                normal_axis=(0, -1, 0),
+                up_axis=(0, 0, 1),
+                pad=cfg.pad,
+                simulator=simulator,
+                client=scene.client,
+                name="left",
+            ),
+            TactileFinger(
+                scene.robot,
+                PANDA_FINGER_LINKS[1],
+                normal_axis=(0, 1, 0),
+                up_axis=(0, 0, 1),
+                pad=cfg.pad,
+                simulator=simulator,
+                client=scene.client,
+                name="right",
+            ),
+        )
+        for f in fingers:
+            f.attach_object(scene.object, scene.mesh)
+        ctl = _Controller(scene, cfg, fingers)
+        success, message, reached, plan = _execute(scene, cfg, ctl)
+        ctl.bar.close()
+        if not success:
+            tqdm.write(f"pick-place FAILED: {message}")
+        log = _collect_log(ctl, scene, plan, success, message, reached, cfg)
+        log_path = out / "pick_place_log.npz"
+        _atomic_savez(log_path, log)
+        gif_path = strip_path = None
+        if ctl.records and cfg.render and (cfg.write_gif or cfg.write_strip):
+            from tvrecon.robot.strip import write_gif, write_strip
+
+            if cfg.write_gif:
+                gif_path = write_gif(log, out / "pick_place.gif")
+            if cfg.write_strip:
+                strip_path = write_strip(log, out / "pick_place_strip.png")
+        presses = sum(f.num_presses for f in fingers)
+    finally:
+        scene.close()
+    return PickPlaceResult(
+        success, message, reached, plan, log, log_path, gif_path, strip_path, time.perf_counter() - t0, presses
+    )
+
+
+def _execute(scene: Scene, cfg: PickPlaceConfig, ctl: _Controller) -> tuple[bool, str, str, GraspPlan | None]:
+    """The task itself; returns (success, message, phase reached, plan)."""
+    cam = RGBDCamera(cfg.camera, client=scene.client)
+    shot = cam.capture()
+    ctl.perception = shot
+    mask = shot["seg"] == scene.object
+    plan = plan_top_grasp(shot["points"][mask], table_z=scene.cfg.table_height, max_opening=PANDA_MAX_OPENING)
+    ctl.record()
+    if not plan.feasible:
+        return False, plan.reason, "approach", plan
+    orn = _hand_orientation(plan.closing_axis)
+    above = plan.position + np.array([0.0, 0.0, cfg.approach_height])
+
+    ctl.set_phase("approach")
+    ctl.grip_target = PANDA_MAX_OPENING / 2
+    ctl.move_to(above, orn)
+    ctl.move_to(plan.position, orn, speed=cfg.speed / 2)
+
+    ctl.set_phase("contact")
+    ctl.grip_force = cfg.contact_force
+    if not ctl.close_until_contact(max_steps=int(2 * PANDA_MAX_OPENING / (cfg.close_speed * scene.cfg.time_step))):
+        return (
+            False,
+            (
+                f"grasp failed: the fingers closed without touching the object on both sides (planned width "
+                f"{plan.width * 100:.1f} cm)"
+            ),
+            "contact",
+            plan,
+        )
+    ctl.hold(6)
+
+    ctl.set_phase("squeeze")
+    ctl.grip_speed = 0.2
+    for k in range(cfg.squeeze_steps):  # ramp the grip force up to its full value, then hold
+        ctl.grip_force = cfg.contact_force + (cfg.grip_force - cfg.contact_force) * min(
+            1.0, 2.0 * (k + 1) / cfg.squeeze_steps
+        )
+        ctl.step()
+
+    z0 = scene.object_pose()[0][2]
+    ctl.set_phase("lift")
+    lifted = plan.position + np.array([0.0, 0.0, cfg.lift_height])
+    ctl.move_to(lifted, orn, speed=cfg.speed / 2)
+    rise = scene.object_pose()[0][2] - z0
+    if rise < 0.7 * cfg.lift_height or not all(len(f.contacts()) > 0 for f in ctl.fingers):
+        return (
+            False,
+            (
+                f"grasp failed: the object slipped out of the gripper (rose {rise * 100:.1f} cm of "
+                f"{cfg.lift_height * 100:.1f} cm)"
+            ),
+            "lift",
+            plan,
+        )
+
+    ctl.set_phase("carry")
+    offset = np.array([cfg.place_xy[0], cfg.place_xy[1]]) - plan.position[:2]
+    ctl.move_to(lifted + np.array([offset[0], offset[1], 0.0]), orn)
+    if not all(len(f.contacts()) > 0 for f in ctl.fingers):
+        return False, "grasp failed: the object was dropped while carrying", "carry", plan
+
+    ctl.set_phase("place")
+    place = plan.position + np.array([offset[0], offset[1], 0.003])
+    ctl.move_to(place, orn, speed=cfg.speed / 2)
+
+    ctl.set_phase("release")
+    ctl.grip_target = PANDA_MAX_OPENING / 2
+    ctl.grip_speed = 0.1
+    ctl.hold(60)
+    ctl.move_to(place + np.array([0.0, 0.0, cfg.approach_height]), orn)
+    ctl.hold(2 * cfg.frame_every)
+    final = scene.object_pose()[0]
+    err = float(np.linalg.norm(final[:2] - np.asarray(cfg.place_xy)))
+    if err > 0.03:
+        return False, f"placed {err * 100:.1f} cm away from the target (tolerance 3 cm)", "release", plan
+    return True, f"picked and placed: object {err * 100:.1f} cm from the target", "release", plan
+
+
+def _collect_log(
+    ctl: _Controller,
+    scene: Scene,
+    plan: GraspPlan | None,
+    success: bool,
+    message: str,
+    reached: str,
+    cfg: PickPlaceConfig,
+) -> dict[str, np.ndarray]:
+    recs = ctl.records
+    keys = [k for k in recs[0] if k != "frame"] if recs else []
+    log = {k: np.stack([np.asarray(r[k]) for r in recs]) for k in keys}
+    log["frames"] = np.stack([r["frame"] for r in recs]).astype(np.uint8) if recs else np.zeros((0, 1, 1, 3), np.uint8)
+    log["phase_names"] = np.array(PHASES)
+    log["success"] = np.array(success)
+    log["message"] = np.array(message)
+    log["phase_reached"] = np.array(reached)
+    log["object"] = np.array(cfg.object if cfg.mesh is None else "<mesh>")
+    log["mesh_vertices"] = np.asarray(scene.mesh.vertices, dtype=np.float32)
+    log["mesh_faces"] = np.asarray(scene.mesh.faces, dtype=np.int64)
+    log["pad_size"] = np.array(cfg.pad.pad_size)
+    log["pad_dx"] = np.array(cfg.pad.dx)
+    if plan is not None:
+        for k in ("position", "closing_axis", "centroid"):
+            log[f"grasp_{k}"] = np.asarray(getattr(plan, k), dtype=np.float64)
+        for k in ("yaw", "width", "length", "top_z", "n_points", "feasible"):
+            log[f"grasp_{k}"] = np.array(getattr(plan, k))
+    shot = getattr(ctl, "perception", None)
+    if shot is not None:
+        log["camera_rgb"], log["camera_depth"], log["camera_seg"] = shot["rgb"], shot["depth"], shot["seg"]
+    return log
+
+
+def _hydra_entry() -> None:
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import DictConfig, OmegaConf
+
+    config_dir = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
+
+    @hydra.main(version_base="1.3", config_path=config_dir, config_name="pick_place")
+    def _main(dcfg: DictConfig) -> None:
+        d = OmegaConf.to_container(dcfg, resolve=True)
+        if not d.get("out_dir"):
+            d["out_dir"] = HydraConfig.get().runtime.output_dir
+        cfg = PickPlaceConfig.from_dict(d)
+        res = run_pick_place(cfg)
+        status = "OK" if res.success else "FAILED"
+        print(f"[{status}] {res.message}")
+        print(f"log: {res.log_path}\ngif: {res.gif_path}\nstrip: {res.strip_path}")
+        print(f"wall time {res.wall_time:.1f} s, {res.num_presses} EIP presses, {len(res.log.get('step', []))} frames")
+
+    _main()
+
+
+def main() -> None:
+    """Console entry point (Hydra): ``python -m tvrecon.robot.pick_place object=can``."""
+    _hydra_entry()
+
+
+if __name__ == "__main__":
+    main()
