@@ -51,7 +51,9 @@ def mug(rng: np.random.Generator) -> trimesh.Trimesh:
     th = np.linspace(-np.pi / 2, np.pi / 2, 30)
     path = np.stack([0.95 + ax * np.cos(th), np.zeros_like(th), zc + az * np.sin(th)], axis=1)
     handle = tube(path, np.full(len(th), uniform(rng, 0.09, 0.13)), sides=20)
-    return difference(union([shell, handle]), [cavity])
+    # trim the handle ends poking into the cup (the cavity is shrunk 1% to avoid coincident surfaces)
+    cavity.apply_scale([0.99, 0.99, 1.0])
+    return union([shell, difference(handle, [cavity])])
 
 
 @register("cup")
@@ -89,13 +91,13 @@ def wineglass(rng: np.random.Generator) -> list[trimesh.Trimesh]:
     phi = np.linspace(0.0, np.pi / 2, 40)
     r = np.concatenate([np.sin(phi), [1.0]])
     z = np.concatenate([depth * (1.0 - np.cos(phi)), [depth + extra + 1e-3]])
-    shell, _ = vessel(r, z, uniform(rng, 0.08, 0.1))
+    shell, _ = vessel(r, z, uniform(rng, 0.12, 0.15))
     stem_h = uniform(rng, 1.0, 2.0)
     stem_r = uniform(rng, 0.08, 0.12)
     foot_r = uniform(rng, 0.6, 0.9)
     shell.apply_translation([0.0, 0.0, stem_h])
     stem = cylinder(stem_r, stem_h + 0.1, center=[0.0, 0.0, stem_h / 2])
-    zf, rf = smooth_curve([0.0, 0.06, 0.12, 0.25], [foot_r, foot_r, foot_r * 0.4, stem_r], 12)
+    zf, rf = smooth_curve([0.0, 0.13, 0.22, 0.38], [foot_r, foot_r, foot_r * 0.4, stem_r], 12)
     foot = lathe(radial_profile(zf, rf), sections=48)
     return [shell, stem, foot]
 
@@ -105,9 +107,9 @@ def pan(rng: np.random.Generator) -> list[trimesh.Trimesh]:
     """Frying pan: shallow flared vessel and a long, slightly rising handle."""
     top = uniform(rng, 1.12, 1.3)
     height = uniform(rng, 0.35, 0.5)
-    t = uniform(rng, 0.11, 0.13)
-    shell, _ = vessel(*cup_profile(1.0, top, height, 0.12), t)
-    length = uniform(rng, 1.6, 2.2)
+    t = uniform(rng, 0.13, 0.15)
+    shell, _ = vessel(*cup_profile(1.0, top, height, 0.16), t)
+    length = uniform(rng, 1.4, 2.0)
     rise = uniform(rng, 0.1, 0.5)
     s = np.linspace(0.0, 1.0, 12)
     path = np.stack([top - 0.1 + length * s, np.zeros_like(s), height * 0.75 + rise * s], axis=1)
@@ -121,7 +123,7 @@ def ladle(rng: np.random.Generator) -> list[trimesh.Trimesh]:
     """Ladle: hemispherical bowl and a long handle rising steeply, hooked at the end."""
     depth = uniform(rng, 0.6, 0.9)
     phi = np.linspace(0.0, np.pi / 2, 40)
-    shell, _ = vessel(np.sin(phi), depth * (1.0 - np.cos(phi)), uniform(rng, 0.11, 0.13))
+    shell, _ = vessel(np.sin(phi), depth * (1.0 - np.cos(phi)), uniform(rng, 0.12, 0.14))
     length = uniform(rng, 2.8, 3.6)
     angle = np.deg2rad(uniform(rng, 50.0, 70.0))
     s = np.linspace(0.0, 1.0, 40)
@@ -138,7 +140,7 @@ def pear(rng: np.random.Generator) -> list[trimesh.Trimesh]:
     r2 = uniform(rng, 0.45, 0.65)
     z2 = uniform(rng, 1.6, 2.0)
     top = z2 + r2
-    u = np.linspace(0.0, np.pi, 90)
+    u = np.linspace(0.0, np.pi, 60)
     z = top * (1.0 - np.cos(u)) / 2.0  # denser samples near both poles
     r1 = np.sqrt(np.clip(1.0 - (z - 1.0) ** 2, 0.0, None))
     rr2 = np.sqrt(np.clip(r2**2 - (z - z2) ** 2, 0.0, None))
@@ -193,8 +195,10 @@ def pawn(rng: np.random.Generator) -> trimesh.Trimesh:
     neck = uniform(rng, 0.25, 0.35)
     head = uniform(rng, 0.38, 0.48)
     z_c = 0.35 + body_h + 0.12
-    angles = np.linspace(-np.pi / 2 + 0.6, np.pi / 2, 20)
-    head_pts = np.stack([head * np.cos(angles), z_c + head * 0.85 + head * np.sin(angles)], axis=1)
+    start = -np.arccos(neck * 0.8 / head)  # the head arc starts where its radius equals the collar's top radius
+    angles = np.linspace(start, np.pi / 2, 20)
+    z_head = z_c + 0.08 - head * np.sin(start)  # sphere centre: arc start sits just above the collar
+    head_pts = np.stack([head * np.cos(angles), z_head + head * np.sin(angles)], axis=1)
     zb, rb = smooth_curve([0.35, 0.35 + body_h * 0.5, 0.35 + body_h], [base * 0.7, neck * 1.35, neck], 16)
     prof = np.concatenate(
         [

@@ -24,6 +24,12 @@ log = logging.getLogger(__name__)
 SECTIONS = 48  # angular resolution of revolved and cylindrical parts
 
 
+def signed_volume(mesh: trimesh.Trimesh) -> float:
+    """Signed enclosed volume (divergence theorem), cheaper than ``mesh.volume`` (no inertia tensor)."""
+    tri = mesh.vertices[mesh.faces]  # (F, 3, 3)
+    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+
+
 def uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     """One float drawn uniformly from [lo, hi)."""
     return float(rng.uniform(lo, hi))
@@ -112,7 +118,7 @@ def lathe(profile: ArrayLike, sections: int = SECTIONS) -> trimesh.Trimesh:
     keep = np.ones(len(p), dtype=bool)
     keep[1:] = np.linalg.norm(np.diff(p, axis=0), axis=1) > 1e-9
     mesh = trimesh.creation.revolve(p[keep], sections=sections)
-    if mesh.volume < 0:
+    if signed_volume(mesh) < 0:
         mesh.invert()
     return mesh
 
@@ -130,7 +136,7 @@ def _crossing(p: np.ndarray, q: np.ndarray, coord: int, value: float) -> np.ndar
 def vessel(
     r: np.ndarray, z: np.ndarray, thickness: float, sections: int = SECTIONS
 ) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
-    """Open-top vessel (bowl, cup, plate) from its outer profile.
+    """Open-top vessel (bowl, cup, plate) from its outer profile (a vertical lip of height ``thickness`` is added).
 
     ``r`` (n,) and ``z`` (n,) trace the outer surface from the bottom centre (r[0] = 0) to the rim, both
     non-decreasing. The inner surface is the outer one shifted by (-thickness, +thickness) in (r, z), which keeps a
@@ -140,6 +146,8 @@ def vessel(
     outer = np.stack([np.asarray(r, dtype=float), np.asarray(z, dtype=float)], axis=1)
     if outer[0, 0] != 0.0 or np.any(np.diff(outer, axis=0) < -1e-12):
         raise ValueError("vessel profile must start on the axis (r[0] == 0) with non-decreasing r and z")
+    # vertical lip of one wall thickness: the rim is then a flat ring of width `thickness`, never a knife edge
+    outer = np.concatenate([outer, [[outer[-1, 0], outer[-1, 1] + thickness]]], axis=0)
     h = outer[-1, 1]
     inner = outer + np.array([-thickness, thickness])
     i = int(np.argmax(inner[:, 0] > 0))
@@ -198,8 +206,7 @@ def tube(
     last = (n - 1) * m
     faces += np.stack([np.full(m, c1), last + ar, last + (ar + 1) % m], axis=1).tolist()
     mesh = trimesh.Trimesh(verts, np.asarray(faces), process=True)
-    trimesh.repair.fix_winding(mesh)
-    if mesh.volume < 0:
+    if signed_volume(mesh) < 0:
         mesh.invert()
     return mesh
 
@@ -286,8 +293,9 @@ def voxel_remesh(mesh: trimesh.Trimesh, resolution: int = 96) -> trimesh.Trimesh
 
 
 def _orient(mesh: trimesh.Trimesh) -> None:
-    trimesh.repair.fix_normals(mesh)
-    if mesh.volume < 0:
+    if not mesh.is_winding_consistent:
+        trimesh.repair.fix_normals(mesh)
+    if signed_volume(mesh) < 0:
         mesh.invert()
 
 
@@ -308,6 +316,6 @@ def finalize(parts: trimesh.Trimesh | Sequence[trimesh.Trimesh], name: str = "sh
         )
         mesh = voxel_remesh(mesh)
     _orient(mesh)
-    if not mesh.is_watertight or mesh.volume <= 0:
+    if not mesh.is_watertight or signed_volume(mesh) <= 0:
         raise RuntimeError(f"shape {name!r} is not a watertight solid after repair")
     return normalize(mesh)

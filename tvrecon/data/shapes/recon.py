@@ -18,7 +18,6 @@ from tvrecon.data.shapes.primitives import (
     refine,
     rotation,
     smooth_curve,
-    sphere,
     uniform,
     union,
     vessel,
@@ -38,7 +37,7 @@ def bottle(rng: np.random.Generator) -> trimesh.Trimesh:
     zs = body + shoulder
     knots_z = [0.0, 0.08, 0.25, body * 0.5, body, body + 0.55 * shoulder, zs, zs + neck_h * 0.6]
     knots_r = [0.9, 0.98, 1.0, waist, 1.0, 0.35 + 0.65 * neck_r + 0.1, neck_r, neck_r]
-    z, r = smooth_curve(knots_z, knots_r, 120)
+    z, r = smooth_curve(knots_z, knots_r, 60)
     lip_z = zs + neck_h * 0.6
     top = zs + neck_h + cap_h
     tail = np.array(
@@ -53,7 +52,7 @@ def bottle(rng: np.random.Generator) -> trimesh.Trimesh:
         ]
     )
     prof = radial_profile(np.concatenate([z, tail[:, 1]]), np.concatenate([r, tail[:, 0]]))
-    return lathe(prof, sections=64)
+    return lathe(prof, sections=48)
 
 
 @register("bowl")
@@ -69,7 +68,7 @@ def bowl(rng: np.random.Generator) -> list[trimesh.Trimesh]:
     parts = [shell]
     if rng.random() < 0.7:
         ring = np.array([[flat * 0.75, 0.02], [flat * 0.75, -0.07], [flat * 1.0, -0.07], [flat * 1.05, 0.02]])
-        parts.append(lathe(np.concatenate([ring, ring[:1]]), sections=64))
+        parts.append(lathe(np.concatenate([ring, ring[:1]]), sections=48))
     return parts
 
 
@@ -77,14 +76,14 @@ def bowl(rng: np.random.Generator) -> list[trimesh.Trimesh]:
 def can(rng: np.random.Generator) -> trimesh.Trimesh:
     """Tin can: straight cylinder with rolled rims, recessed lids and optional stiffening beads."""
     height = uniform(rng, 1.2, 2.6)
-    z = np.linspace(0.06, height - 0.06, 240)
+    z = np.linspace(0.06, height - 0.06, 100)
     r = np.ones_like(z)
     for c in (0.06, height - 0.06):
-        r += 0.035 * np.exp(-(((z - c) / 0.03) ** 2))
+        r += 0.035 * np.exp(-(((z - c) / 0.04) ** 2))
     n_beads = int(rng.integers(0, 7))
     bead_depth = uniform(rng, 0.02, 0.04)
     for c in np.linspace(0.2 * height, 0.8 * height, n_beads):
-        r -= bead_depth * np.exp(-(((z - c) / 0.035) ** 2))
+        r -= bead_depth * np.exp(-(((z - c) / 0.045) ** 2))
     recess = uniform(rng, 0.03, 0.07)
     lid_r = uniform(rng, 0.86, 0.92)
     prof = np.concatenate(
@@ -94,7 +93,7 @@ def can(rng: np.random.Generator) -> trimesh.Trimesh:
             [[1.03, height], [lid_r + 0.02, height], [lid_r, height - recess], [0.0, height - recess]],
         ]
     )
-    return lathe(prof, sections=64)
+    return lathe(prof, sections=48)
 
 
 @register("pepsi")
@@ -115,11 +114,11 @@ def pepsi(rng: np.random.Generator) -> trimesh.Trimesh:
         [
             [[0.0, dome], [foot * 0.6, dome * 0.7], [foot * 0.92, 0.02]],
             np.stack([r, z], axis=1),
-            [[neck + 0.02, height - 0.03], [neck + 0.02, height], [neck - 0.03, height], [neck - 0.06, height - 0.07]],
-            [[0.0, height - 0.07]],
+            [[neck + 0.03, height - 0.05], [neck + 0.03, height], [neck - 0.08, height], [neck - 0.1, height - 0.08]],
+            [[0.0, height - 0.08]],
         ]
     )
-    return lathe(prof, sections=64)
+    return lathe(prof, sections=48)
 
 
 @register("conditioner")
@@ -134,7 +133,7 @@ def conditioner(rng: np.random.Generator) -> list[trimesh.Trimesh]:
         [0.85, 0.96, 1.0, belly, 0.5 * (belly + top_r) + 0.08, top_r],
         100,
     )
-    shell = lathe(radial_profile(z, r), sections=64)
+    shell = lathe(radial_profile(z, r), sections=48)
     shell.apply_scale([1.0, oval, 1.0])
     cap_h = uniform(rng, 0.35, 0.6)
     cap_r = top_r * uniform(rng, 1.0, 1.15)
@@ -208,12 +207,13 @@ def spoon(rng: np.random.Generator) -> trimesh.Trimesh:
     c = uniform(rng, 0.03, 0.055)
     t = uniform(rng, 0.035, 0.045)
     cx = lh + a - 0.01
-    outer = sphere(1.0, subdivisions=4)
-    outer.apply_scale([a, b, c + t])
-    inner = sphere(1.0, subdivisions=4)
+    phi = np.linspace(-np.pi / 2, 0.0, 16)
+    outer = lathe(np.concatenate([np.stack([np.cos(phi), np.sin(phi)], 1), [[0.0, 0.0]]]), sections=40)
+    outer.apply_scale([a, b, c + t])  # lower half-ellipsoid with a flat top at z = 0
+    phi = np.linspace(-np.pi / 2, np.pi / 2, 24)
+    inner = lathe(np.stack([np.cos(phi), np.sin(phi)], 1), sections=40)
     inner.apply_scale([a - t, b - t, c])
-    cut = box([4 * a, 4 * b, 4 * (c + t)], center=[0.0, 0.0, 2 * (c + t)])
-    bowl_ = difference(outer, [inner, cut])
+    bowl_ = difference(outer, [inner])
     bowl_.apply_translation([cx, 0.0, 0.0])
     handle = extrude(_handle_polygon(lh + 0.02, uniform(rng, 0.06, 0.09), uniform(rng, 0.03, 0.045)), t, -t / 2)
     mesh = union([bowl_, handle])

@@ -8,7 +8,6 @@ from shapely.geometry import Point, Polygon
 
 from tvrecon.data.shapes.primitives import (
     box,
-    cylinder,
     extrude,
     lathe,
     sphere,
@@ -18,25 +17,15 @@ from tvrecon.data.shapes.registry import register
 
 
 @register("cube")
-def cube(rng: np.random.Generator) -> list[trimesh.Trimesh]:
-    """Box with nearly equal sides and randomly rounded edges (union of boxes, edge cylinders and corner balls)."""
+def cube(rng: np.random.Generator) -> trimesh.Trimesh:
+    """Box with nearly equal sides and randomly rounded edges (convex hull of eight corner balls)."""
     half = np.array([1.0, uniform(rng, 0.85, 1.0), uniform(rng, 0.85, 1.0)])
     rad = uniform(rng, 0.0, 0.2)
     if rad < 0.04:
-        return [box(2 * half)]
-    core = half - rad
-    parts = [box(2 * (core + rad * np.eye(3)[i])) for i in range(3)]
-    for axis in range(3):
-        others = [a for a in range(3) if a != axis]
-        for sa in (-1, 1):
-            for sb in (-1, 1):
-                c = np.zeros(3)
-                c[others[0]] = sa * core[others[0]]
-                c[others[1]] = sb * core[others[1]]
-                parts.append(cylinder(rad, 2 * core[axis], center=c, axis=np.eye(3)[axis], sections=24))
-    for corner in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T:
-        parts.append(sphere(rad, center=corner * core, subdivisions=2))
-    return parts
+        return box(2 * half)
+    ball_pts = sphere(rad, subdivisions=2).vertices
+    corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T * (half - rad)
+    return trimesh.convex.convex_hull((corners[:, None, :] + ball_pts[None, :, :]).reshape(-1, 3))
 
 
 @register("ball")

@@ -52,7 +52,7 @@ def wrench(rng: np.random.Generator) -> trimesh.Trimesh:
     else:
         slot_b = affinity.rotate(sbox(-rh * 2.5, -jaw * 0.4, 0.0, jaw * 0.4), -tilt, origin=(0, 0), use_radians=True)
         head_b = head_b.difference(affinity.translate(slot_b, -length / 2 - rh * 0.05, 0.0))
-    outline = unary_union([handle, head_a, head_b]).buffer(0.004).buffer(-0.004)
+    outline = unary_union([handle, head_a, head_b]).buffer(-0.012).buffer(0.012)  # round off knife-edge jaw tips
     return extrude(outline, uniform(rng, 0.04, 0.055) * (length + 2 * rh))
 
 
@@ -160,11 +160,11 @@ def bolt(rng: np.random.Generator) -> list[trimesh.Trimesh]:
     length = uniform(rng, 1.8, 3.5)
     pitch = uniform(rng, 0.16, 0.24)
     head = cylinder(head_r, head_h, center=[0.0, 0.0, head_h / 2], sections=6)
-    z = np.arange(head_h - 0.05, head_h + length, pitch / 4)
+    z = np.arange(head_h - 0.05, head_h + length, pitch / 6)
     depth = uniform(rng, 0.06, 0.1)
-    phase = np.arange(len(z)) % 4  # crest, flank, root, flank
-    r = np.where(phase == 0, sr, np.where(phase == 2, sr - depth, sr - depth / 2))
-    r[: int(0.3 * length / pitch) * 4] = sr  # unthreaded part below the head
+    phase = np.arange(len(z)) % 6  # crest, crest, flank, root, root, flank (trapezoidal thread)
+    r = np.where(phase < 2, sr, np.where((phase == 3) | (phase == 4), sr - depth, sr - depth / 2))
+    r[: int(0.3 * length / pitch) * 6] = sr  # unthreaded part below the head
     r[-1] = sr - 0.1
     shank = lathe(np.concatenate([[[0.0, z[0]]], np.stack([r, z], 1), [[0.0, z[-1]]]]), sections=32)
     return [head, shank]
