@@ -1,0 +1,130 @@
+"""Speed benchmark of the MLS-MPM solver on the issue-2 press scene, against the straightforward reference port.
+
+Scene: pad of 48 x 48 x 12 particles at half-cell spacing, 128 cells across the unit domain, a sphere collider under
+the pad, the pad's back layer driven down by the hand (alpha = 0 there, 1 elsewhere: the "clamped" profile), 200
+steps with the CFL time step. Runs ``tvrecon.sim.mpm.MLSMPM`` through its public contract and
+``benchmarks/reference_mpm.py`` (dense 128^3 grid, index_add_, torch.linalg.svd) in the same process, prints
+particle-steps/s of both, their ratio, peak memory (max RSS) and the max abs difference of final positions.
+
+    .venv/bin/python benchmarks/bench_sim.py [--steps 200] [--repeats 2] [--threads N] [--skip-reference]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from reference_mpm import ReferenceMPM  # noqa: E402
+
+from tvrecon.sim.colliders import SphereCollider  # noqa: E402
+from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
+
+N_GRID = 128
+SPHERE_CENTER = (0.5, 0.5, 0.3)
+SPHERE_RADIUS = 0.1
+
+
+def press_scene(nx: int = 48, ny: int = 48, nz: int = 12, n_grid: int = N_GRID) -> tuple[torch.Tensor, ...]:
+    """Pad particles (P, 3) float32 one cell above the sphere top, alpha (P,), hand velocity (3,), particle volume."""
+    dx = 1.0 / n_grid
+    h = 0.5 * dx
+    ii = torch.arange(nx, dtype=torch.float64)
+    jj = torch.arange(ny, dtype=torch.float64)
+    kk = torch.arange(nz, dtype=torch.float64)
+    g = torch.stack(torch.meshgrid(ii, jj, kk, indexing="ij"), -1).reshape(-1, 3)
+    x = (g + 0.5) * h
+    x[:, 0] += 0.5 - nx * h / 2
+    x[:, 1] += 0.5 - ny * h / 2
+    x[:, 2] += SPHERE_CENTER[2] + SPHERE_RADIUS + dx  # bottom layer one cell above the sphere
+    alpha = torch.ones(x.shape[0])
+    alpha[g[:, 2] == nz - 1] = 0.0  # back layer follows the hand
+    hand = torch.tensor([0.0, 0.0, -0.125])  # ~4 cells in 200 CFL steps: 1 cell gap + 3 cells indentation
+    return x.float(), alpha, hand, h**3
+
+
+def run_ours(steps: int) -> tuple[float, torch.Tensor, torch.Tensor]:
+    x, alpha, hand, vol = press_scene()
+    solver = MLSMPM(MPMConfig(n_grid=N_GRID))
+    state = ParticleState.create(x, None, volume=vol)
+    col = SphereCollider(SPHERE_CENTER, SPHERE_RADIUS)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        state = solver.step(state, collider=col, hand_velocity=hand, alpha=alpha)
+    el = time.perf_counter() - t0
+    return el, state.x, solver.last_force[0]
+
+
+def run_reference(steps: int, dt: float) -> tuple[float, torch.Tensor, torch.Tensor]:
+    x, alpha, hand, vol = press_scene()
+    P = x.shape[0]
+    ref = ReferenceMPM(N_GRID, dt, E=3.0, nu=0.25)
+    v = torch.zeros_like(x)
+    C = torch.zeros(P, 3, 3)
+    F = torch.eye(3).expand(P, 3, 3).clone()
+    volume = torch.full((P,), vol)
+    mass = volume.clone()
+    col = SphereCollider(SPHERE_CENTER, SPHERE_RADIUS)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        x, v, C, F = ref.step(x, v, C, F, volume, mass, col, hand, alpha)
+    el = time.perf_counter() - t0
+    return el, x, ref.last_force
+
+
+def maxrss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--repeats", type=int, default=2, help="timed runs of our solver (best is reported)")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
+    ap.add_argument("--skip-reference", action="store_true")
+    args = ap.parse_args()
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    P = 48 * 48 * 12
+    dt = MLSMPM(MPMConfig(n_grid=N_GRID)).dt
+    print(
+        f"scene: P={P} particles, n_grid={N_GRID}, dt={dt:.4g} (CFL), steps={args.steps}, "
+        f"threads={torch.get_num_threads()}"
+    )
+    run_ours(5)  # warm-up
+    times = []
+    for _ in range(args.repeats):
+        el, x_ours, f_ours = run_ours(args.steps)
+        times.append(el)
+    best = min(times)
+    rate = P * args.steps / best
+    print(
+        f"ours:      {rate / 1e6:.3f} M particle-steps/s (best of {[round(t, 2) for t in times]} s), "
+        f"maxrss {maxrss_mb():.0f} MB, final force {f_ours.tolist()}"
+    )
+    if args.skip_reference:
+        return
+    el_ref, x_ref, f_ref = run_reference(args.steps, dt)
+    rate_ref = P * args.steps / el_ref
+    print(
+        f"reference: {rate_ref / 1e6:.3f} M particle-steps/s ({el_ref:.2f} s), maxrss {maxrss_mb():.0f} MB, "
+        f"final force {f_ref.tolist()}"
+    )
+    diff = (x_ours - x_ref).abs().max().item()
+    disp = (x_ref - press_scene()[0]).abs().max().item()
+    print(f"speed-up ours / reference: {rate / rate_ref:.2f}x")
+    print(
+        f"final positions: max |ours - reference| = {diff:.3g} (= {diff * N_GRID:.3g} cells; max displacement "
+        f"{disp * N_GRID:.3g} cells)"
+    )
+
+
+if __name__ == "__main__":
+    main()
