@@ -14,7 +14,7 @@ from tvrecon.data.shapes.primitives import lathe, normalize, signed_volume, vess
 PAPER_RECON = {"bottle", "bowl", "can", "conditioner", "cube", "fork", "gear", "pepsi", "spoon", "scissors"}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _shape(name: str, seed: int) -> trimesh.Trimesh:
     return make_shape(name, seed)
 

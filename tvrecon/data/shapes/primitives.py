@@ -272,9 +272,11 @@ def normalize(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return out
 
 
-def voxel_remesh(mesh: trimesh.Trimesh, resolution: int = 96) -> trimesh.Trimesh:
+def voxel_remesh(mesh: trimesh.Trimesh, resolution: int = 64) -> trimesh.Trimesh:
     """Watertight remesh of a (possibly open or self-intersecting) mesh: voxelize at ``resolution`` cells across the
-    largest extent, fill the interior, run marching cubes and smooth lightly. Returns a mesh in the input's frame."""
+    largest extent, fill the enclosed interior, run marching cubes and smooth lightly; keep the largest part.
+    An open surface that encloses nothing becomes a thin (about one voxel) solid shell. Returns a mesh in the input's
+    frame."""
     extent = float(np.max(mesh.extents))
     if not np.isfinite(extent) or extent <= 0:
         raise ValueError("cannot voxel-remesh an empty or degenerate mesh")
@@ -300,6 +302,8 @@ def _orient(mesh: trimesh.Trimesh) -> None:
 
 
 def _largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    if mesh.body_count <= 1:
+        return mesh
     parts = mesh.split(only_watertight=False)
     if len(parts) <= 1:
         return mesh
