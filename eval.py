@@ -1,0 +1,141 @@
+"""Evaluate trained checkpoints on the test split and write the paper's Tables 2, 3 and 4.
+
+    python eval.py ckpt_path=logs/train/runs/<time>/checkpoints/last.ckpt
+    python eval.py run_dir=logs/train/multiruns/<time>        # every run below (one per experiment / seed)
+    python eval.py run_dir=... data=paper trainer=gpu          # another data preset or accelerator
+
+Each checkpoint is rebuilt from its run's ``.hydra/config.yaml`` (model and, unless ``data=`` is given, data), then
+tested with 2, 5 and 10 touches (reconstruction: plus the no-touch "Visual" mode of a fusion model, and the
+blank-view "Tactile" mode of the tactile-only model) or 1 to 10 touches (classifiers). Output in the eval run
+folder (``logs/eval/runs/<time>``): ``<run>/metrics.json``, ``<run>/meshes/*.obj``, ``<run>/renders/test_<class>.png``,
+``tables/table{2,3,4}.{md,csv}`` and ``tables/tables.md``, and the tables are printed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent
+os.environ.setdefault("PROJECT_ROOT", str(ROOT))
+
+import hydra  # noqa: E402
+import lightning as L  # noqa: E402
+from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
+
+from train import report_tables, save_results  # noqa: E402
+
+log = logging.getLogger("eval")
+
+TRAIN_HINT = (
+    "train one first with `python train.py experiment=smoke` (or experiment=<name>); checkpoints are written to "
+    "logs/train/runs/<time>/checkpoints/ and sweeps to logs/train/multiruns/<time>/<num>_<experiment>/checkpoints/"
+)
+
+
+def run_config_path(ckpt: Path) -> Path:
+    """The config of the run that wrote ``ckpt``: ``<run>/checkpoints/x.ckpt`` -> ``<run>/.hydra/config.yaml``."""
+    return ckpt.resolve().parent.parent / ".hydra" / "config.yaml"
+
+
+def pick_checkpoint(ckpt_dir: Path, prefer: str = "best") -> Path | None:
+    """The best (non-``last``, newest) or ``last`` checkpoint of a run's ``checkpoints`` folder, None if empty."""
+    if prefer not in ("best", "last"):
+        raise ValueError(f"prefer must be 'best' or 'last', got {prefer!r}")
+    ckpts = sorted(ckpt_dir.glob("*.ckpt"), key=lambda p: p.stat().st_mtime)
+    last = [p for p in ckpts if p.stem.startswith("last")]
+    best = [p for p in ckpts if not p.stem.startswith("last")]
+    order = (best[::-1] + last[::-1]) if prefer == "best" else (last[::-1] + best[::-1])
+    return order[0] if order else None
+
+
+def find_checkpoints(ckpt_path: str | None, run_dir: str | None, prefer: str = "best") -> list[Path]:
+    """Resolve ``ckpt_path`` or every run below ``run_dir`` to checkpoint files.
+
+    Raises:
+        FileNotFoundError: the checkpoint / folder does not exist or holds no checkpoint (the message names the
+            path and the command that makes one).
+        ValueError: neither or both of ``ckpt_path`` and ``run_dir`` given.
+    """
+    if (ckpt_path is None) == (run_dir is None):
+        raise ValueError(
+            "give exactly one of ckpt_path=<file.ckpt> or run_dir=<run or multirun folder>, e.g. "
+            "`python eval.py ckpt_path=logs/train/runs/<time>/checkpoints/last.ckpt`"
+        )
+    if ckpt_path is not None:
+        path = Path(ckpt_path)
+        if not path.is_file():
+            raise FileNotFoundError(f"checkpoint {path} does not exist: {TRAIN_HINT}")
+        return [path]
+    root = Path(run_dir)  # type: ignore[arg-type]
+    if not root.is_dir():
+        raise FileNotFoundError(f"run_dir {root} does not exist: {TRAIN_HINT}")
+    found = []
+    for ckpt_dir in sorted(root.rglob("checkpoints")):
+        if ckpt_dir.is_dir() and (ckpt := pick_checkpoint(ckpt_dir, prefer)) is not None:
+            found.append(ckpt)
+    if not found:
+        raise FileNotFoundError(f"no checkpoints/*.ckpt below {root}: {TRAIN_HINT}")
+    return found
+
+
+def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
+    """Test one checkpoint; returns its result dict (also written to ``<out_dir>/metrics.json``)."""
+    cfg_path = run_config_path(ckpt)
+    if not cfg_path.is_file():
+        raise FileNotFoundError(
+            f"{cfg_path} (the config of the run that wrote {ckpt}) does not exist: eval.py rebuilds the model from "
+            f"it, so evaluate checkpoints inside their train.py run folder"
+        )
+    run_cfg = OmegaConf.load(cfg_path)
+    with open_dict(run_cfg):
+        run_cfg.paths = OmegaConf.create(OmegaConf.to_container(cfg.paths, resolve=True))
+        run_cfg.paths.output_dir = str(out_dir)
+        if cfg.get("data") is not None:
+            run_cfg.data = cfg.data
+        target = str(run_cfg.model._target_)
+        if target.endswith("ClassificationModule"):
+            run_cfg.model.eval_touches = list(cfg.cls_touches)
+        else:
+            run_cfg.model.eval_touches = list(cfg.eval_touches)
+            run_cfg.model.export = bool(cfg.export)
+    L.seed_everything(int(cfg.seed), workers=True)
+    datamodule: L.LightningDataModule = hydra.utils.instantiate(run_cfg.data)
+    model: L.LightningModule = hydra.utils.instantiate(run_cfg.model)
+    if hasattr(model, "output_dir"):
+        model.output_dir = str(out_dir)
+    trainer: L.Trainer = hydra.utils.instantiate(
+        cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
+    )
+    trainer.test(model=model, datamodule=datamodule, ckpt_path=str(ckpt))
+    result = getattr(model, "test_results", None)
+    if result is None:
+        raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
+    result = {**result, "seed": run_cfg.get("seed"), "checkpoint": str(ckpt)}
+    if trainer.is_global_zero:
+        save_results(result, out_dir)
+    return result
+
+
+def evaluate(cfg: DictConfig) -> dict[str, Any]:
+    """Evaluate every checkpoint named by ``cfg`` and write/print the tables. Returns results and table text."""
+    ckpts = find_checkpoints(cfg.get("ckpt_path"), cfg.get("run_dir"), str(cfg.get("prefer", "best")))
+    out_root = Path(cfg.paths.output_dir)
+    results = []
+    for i, ckpt in enumerate(ckpts):
+        name = f"{i:02d}_{ckpt.resolve().parent.parent.name}"
+        log.info("[%d/%d] evaluating %s", i + 1, len(ckpts), ckpt)
+        results.append(evaluate_checkpoint(ckpt, cfg, out_root / name))
+    text = report_tables(results, out_root)
+    return {"results": results, "tables": text, "output_dir": str(out_root)}
+
+
+@hydra.main(version_base="1.3", config_path="configs", config_name="eval.yaml")
+def main(cfg: DictConfig) -> None:
+    evaluate(cfg)
+
+
+if __name__ == "__main__":
+    main()

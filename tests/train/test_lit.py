@@ -1,0 +1,147 @@
+"""LightningModules on synthetic batches: frame mapping, touch masking, fit/test loops and result dicts."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import lightning as L
+import pytest
+import torch
+import trimesh
+from synthetic import SyntheticClassificationDataModule, SyntheticReconDataModule
+
+from tvrecon.models.backbone import ResNet18Backbone
+from tvrecon.models.classifier import TactileClassifier
+from tvrecon.models.fusion import TactileVisualFusion
+from tvrecon.models.gcn import MeshDeformer
+from tvrecon.models.lit_cls import ClassificationModule, select_touches
+from tvrecon.models.lit_recon import ReconstructionModule, gt_to_camera, keep_first_touches
+from tvrecon.models.reconstructor import TactileVisualReconstructor
+
+
+def _net(mode: str = "fusion") -> TactileVisualReconstructor:
+    chans = list(ResNet18Backbone.channels)
+    fusion = None if mode == "visual_only" else TactileVisualFusion(chans, chans)
+    tactile = None if mode == "visual_only" else ResNet18Backbone()
+    return TactileVisualReconstructor(
+        ResNet18Backbone(), tactile, fusion, MeshDeformer(chans, hidden=16, num_blocks=1), mode=mode
+    )
+
+
+def _optimizer(params):
+    return torch.optim.AdamW(params, lr=1e-3)
+
+
+def _trainer(tmp_path: Path, **kw) -> L.Trainer:
+    base = dict(
+        accelerator="cpu", devices=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        default_root_dir=str(tmp_path), enable_model_summary=False,
+    )  # fmt: skip
+    base.update(kw)
+    return L.Trainer(**base)
+
+
+def test_gt_to_camera_matches_manual_rotation() -> None:
+    angle = 0.3
+    R = torch.tensor([[math.cos(angle), 0, math.sin(angle)], [0, 1, 0], [-math.sin(angle), 0, math.cos(angle)]])
+    RT = torch.cat([R, torch.tensor([[0.1], [-0.2], [2.0]])], 1)[None].float()
+    p = torch.randn(1, 5, 3)
+    n = torch.nn.functional.normalize(torch.randn(1, 5, 3), dim=-1)
+    pc, nc = gt_to_camera(p, n, RT)
+    for i in range(5):
+        assert torch.allclose(pc[0, i], R @ p[0, i] + RT[0, :, 3], atol=1e-5)
+        assert torch.allclose(nc[0, i], R @ n[0, i], atol=1e-5)
+    assert torch.allclose(nc.norm(dim=-1), torch.ones(1, 5), atol=1e-5)
+    with pytest.raises(ValueError, match=r"RT must have shape \(B, 3, 4\)"):
+        gt_to_camera(p, n, RT[:, :, :3])
+
+
+def test_keep_first_touches_keeps_first_valid_ones() -> None:
+    mask = torch.tensor([[True, False, True, True, False], [True, True, True, True, True]])
+    assert keep_first_touches(mask, 2).tolist() == [
+        [True, False, True, False, False],
+        [True, True, False, False, False],
+    ]
+    assert not keep_first_touches(mask, 0).any()
+    assert torch.equal(keep_first_touches(mask, 10), mask)
+    with pytest.raises(ValueError, match=r"\(B, T\) bool"):
+        keep_first_touches(mask.long(), 2)
+
+
+def test_select_touches_first_and_random() -> None:
+    tactile = torch.arange(4.0)[None, :, None, None, None].expand(2, 4, 3, 2, 2).clone()
+    mask = torch.tensor([[False, True, True, True], [True, True, False, True]])
+    first = select_touches(tactile, mask, 2)
+    assert first[:, :, 0, 0, 0].tolist() == [[1.0, 2.0], [0.0, 1.0]]
+    rnd = select_touches(tactile, mask, 3, random=True)
+    assert sorted(rnd[0, :, 0, 0, 0].tolist()) == [1.0, 2.0, 3.0]
+    with pytest.raises(ValueError, match="at least 4 valid touches"):
+        select_touches(tactile, mask, 4)
+
+
+@pytest.mark.parametrize(
+    ("mode", "expected"),
+    [("fusion", {"visual", "tv@2"}), ("visual_only", {"visual"}), ("tactile_only", {"tactile@2", "tactile@5"})],
+)
+def test_recon_fit_and_test_modes(tmp_path: Path, mode: str, expected: set[str]) -> None:
+    export = mode == "fusion"  # renders cost ~1 s each: check the exports once
+    model = ReconstructionModule(
+        _net(mode), _optimizer, eval_touches=(2,) if export else (2, 5), metric_points=200, name=mode,
+        loss_weights={"chamfer": 1.0, "normal": 1.6e-4, "edge": 0.1, "laplacian": 0.5, "move": 0.033},
+        export=export, render_every_n_epochs=1 if export else 0,
+    )  # fmt: skip
+    dm = SyntheticReconDataModule(batch_size=2, n=4)
+    trainer = _trainer(tmp_path, max_epochs=1, limit_train_batches=1, limit_val_batches=1, limit_test_batches=2)
+    trainer.fit(model, dm)
+    for key in ("train/loss", "train/chamfer", "train/laplacian", "val/chamfer", "val/loss"):
+        assert key in trainer.callback_metrics and torch.isfinite(trainer.callback_metrics[key])
+    trainer.test(model, dm)
+    res = model.test_results
+    assert res["task"] == "reconstruction" and res["name"] == mode
+    assert set(res["modes"]) == expected
+    for entry in res["modes"].values():
+        assert entry["count"] == 4 and entry["chamfer"] > 0
+        assert 0 <= entry["fscore@0.01"] <= entry["fscore@0.02"] <= 1
+        assert set(entry["per_class"]) == {"bottle", "bowl", "can"}
+        # the per-class means average back to the overall mean (weighted by class counts 2, 1, 1)
+        pc = entry["per_class"]
+        assert math.isclose((2 * pc["bottle"] + pc["bowl"] + pc["can"]) / 4, entry["chamfer"], rel_tol=1e-6)
+    if export:
+        # synthetic sample i has 1 + i % 10 valid touches: 1, 2, 3, 4 -> first-2 uses 1, 2, 2, 2 = 1.75 on average
+        assert res["modes"]["tv@2"]["touches"] == pytest.approx(1.75)
+        assert res["modes"]["visual"]["touches"] == 0
+        assert (tmp_path / "renders" / "epoch_000.png").is_file()
+        assert len(list((tmp_path / "meshes").glob("*.obj"))) == 3 * len(expected)
+        assert len(list((tmp_path / "renders").glob("test_*.png"))) == 3 * len(expected)
+        mesh = trimesh.load(tmp_path / "meshes" / "bottle_tv2.obj", process=False)
+        assert len(mesh.vertices) == 2466 and len(mesh.faces) == 4928
+    else:
+        assert not (tmp_path / "meshes").exists() and not (tmp_path / "renders").exists()
+
+
+def test_recon_random_touch_count_in_range() -> None:
+    model = ReconstructionModule(_net(), _optimizer, min_touches=3, max_touches=4)
+    counts = {model._touch_count() for _ in range(50)}
+    assert counts == {3, 4}
+    with pytest.raises(ValueError, match="min_touches <= max_touches"):
+        ReconstructionModule(_net(), _optimizer, min_touches=5, max_touches=4)
+
+
+@pytest.mark.slow
+def test_classification_fit_test_and_learns(tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    net = TactileClassifier(num_classes=3, num_touches=2)
+    model = ClassificationModule(
+        net, _optimizer, num_touches=2, touch_sampling="random", eval_touches=[1, 2, 4], name="classify", seed=0
+    )
+    assert model.eval_touches == [1, 2]  # 4 > the trained N is dropped
+    dm = SyntheticClassificationDataModule(batch_size=6, n=6, num_touches=2, tactile_size=8)
+    trainer = _trainer(tmp_path, max_epochs=25, limit_val_batches=1)
+    trainer.fit(model, dm)
+    trainer.test(model, dm)
+    res = model.test_results
+    assert res["task"] == "classification" and set(res["accuracy"]) == {"1", "2"}
+    assert res["accuracy"]["2"] > 0.5  # 3 separable classes: far above chance (1/3)
+    with pytest.raises(ValueError, match="num_touches must be in"):
+        ClassificationModule(TactileClassifier(num_classes=3, num_touches=2), _optimizer, num_touches=3)

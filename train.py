@@ -1,0 +1,147 @@
+"""Train (then test) a tactile-visual reconstruction model or a tactile classifier with Lightning + Hydra.
+
+    python train.py experiment=smoke                                  # tiny data on CPU, ends by printing the tables
+    python train.py experiment=<name> data=<tiny|small|paper> trainer=<cpu|gpu|ddp>
+    python train.py -m 'experiment=glob(*,exclude=[smoke,classify])' data=paper trainer=gpu   # all ablations
+    python train.py experiment=full ckpt_path=logs/train/runs/<time>/checkpoints/last.ckpt   # resume
+    python train.py hparams_search=lr_wd                              # grid search with the basic sweeper
+
+Every run writes to its hydra folder (``logs/train/runs/<time>`` or ``.../multiruns/<time>/<num>_<experiment>``):
+``checkpoints/`` (best by ``val/chamfer`` and last), ``csv/metrics.csv``, ``tensorboard/``, ``renders/`` (predicted
+vs ground-truth mesh per epoch and per test class), ``meshes/*.obj``, ``metrics.json`` (test results),
+``tables/`` (Markdown + CSV) and ``loss_curves.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent
+os.environ.setdefault("PROJECT_ROOT", str(ROOT))
+
+import hydra  # noqa: E402
+import lightning as L  # noqa: E402
+from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+
+from tvrecon.tables import atomic_write_text, build_tables, format_tables, write_tables  # noqa: E402
+from tvrecon.viz import plot_loss_curves  # noqa: E402
+
+log = logging.getLogger("train")
+
+
+def instantiate_callbacks(cfg: DictConfig | None) -> list[L.Callback]:
+    """Build every ``_target_`` entry of the ``callbacks`` config group (None -> no callbacks)."""
+    if not cfg:
+        return []
+    if not isinstance(cfg, DictConfig):
+        raise ValueError(f"callbacks config must be a mapping of name -> {{_target_: ...}}, got {type(cfg).__name__}")
+    return [hydra.utils.instantiate(c) for c in cfg.values() if isinstance(c, DictConfig) and "_target_" in c]
+
+
+def instantiate_loggers(cfg: DictConfig | None) -> list[Logger]:
+    """Build every ``_target_`` entry of the ``logger`` config group (None -> no logger)."""
+    if not cfg:
+        return []
+    if not isinstance(cfg, DictConfig):
+        raise ValueError(f"logger config must be a mapping of name -> {{_target_: ...}}, got {type(cfg).__name__}")
+    return [hydra.utils.instantiate(c) for c in cfg.values() if isinstance(c, DictConfig) and "_target_" in c]
+
+
+def save_results(result: dict[str, Any], out_dir: str | Path) -> Path:
+    """Write a test result dict as ``<out_dir>/metrics.json`` (atomic)."""
+    return atomic_write_text(Path(out_dir) / "metrics.json", json.dumps(result, indent=2, sort_keys=True))
+
+
+def report_tables(results: list[dict[str, Any]], out_dir: str | Path, echo: bool = True) -> str:
+    """Build the paper tables the results allow, write them to ``<out_dir>/tables`` and print them."""
+    tables = build_tables(results)
+    if not tables:
+        return ""
+    paths = write_tables(tables, Path(out_dir) / "tables")
+    text = format_tables(tables)
+    if echo:
+        print("\n" + text + f"\n(tables written to {paths[0].parent})", flush=True)
+    return text
+
+
+def _csv_metrics(trainer: L.Trainer) -> Path | None:
+    for lg in trainer.loggers:
+        if isinstance(lg, CSVLogger):
+            path = Path(lg.log_dir) / "metrics.csv"
+            return path if path.is_file() else None
+    return None
+
+
+def train(cfg: DictConfig) -> dict[str, Any]:
+    """Fit then test the model described by ``cfg`` (the composed ``configs/train.yaml``).
+
+    Returns:
+        ``{"metrics": {name: float}, "result": test result dict | None, "tables": str, "output_dir": str,
+        "best_ckpt": str | None}``.
+    """
+    if cfg.get("seed") is not None:
+        L.seed_everything(int(cfg.seed), workers=True)
+    out_dir = Path(cfg.paths.output_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    log.info("Instantiating datamodule <%s>", cfg.data._target_)
+    datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
+    log.info("Instantiating model <%s>", cfg.model._target_)
+    model: L.LightningModule = hydra.utils.instantiate(cfg.model)
+    callbacks = instantiate_callbacks(cfg.get("callbacks"))
+    loggers = instantiate_loggers(cfg.get("logger"))
+    trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
+    for lg in trainer.loggers:
+        lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=False))  # type: ignore[arg-type]
+
+    ckpt_path = cfg.get("ckpt_path")
+    if ckpt_path is not None and not Path(ckpt_path).is_file():
+        raise FileNotFoundError(
+            f"ckpt_path={ckpt_path} does not exist: pass the checkpoints/last.ckpt of an earlier run to resume, "
+            f"or drop ckpt_path to start from scratch"
+        )
+    if cfg.get("train"):
+        log.info("Starting training")
+        trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
+
+    best = None
+    if trainer.checkpoint_callback is not None and getattr(trainer.checkpoint_callback, "best_model_path", ""):
+        best = trainer.checkpoint_callback.best_model_path
+    result = None
+    tables = ""
+    if cfg.get("test"):
+        log.info("Testing %s", best or "the current weights (no best checkpoint)")
+        trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
+        metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+        result = getattr(model, "test_results", None)
+        if result is not None and trainer.is_global_zero:
+            result = {**result, "seed": cfg.get("seed"), "checkpoint": best}
+            save_results(result, out_dir)
+            if cfg.get("tables", True):
+                tables = report_tables([result], out_dir)
+    if trainer.is_global_zero:
+        csv_path = _csv_metrics(trainer)
+        if csv_path is not None:
+            try:
+                plot_loss_curves(csv_path, out_dir / "loss_curves.png")
+            except ValueError as err:  # e.g. fast_dev_run logs nothing plottable
+                log.warning("no loss curves: %s", err)
+    return {"metrics": metrics, "result": result, "tables": tables, "output_dir": str(out_dir), "best_ckpt": best}
+
+
+@hydra.main(version_base="1.3", config_path="configs", config_name="train.yaml")
+def main(cfg: DictConfig) -> float | None:
+    """Hydra entry point; returns the optimized metric for sweepers."""
+    out = train(cfg)
+    value = out["metrics"].get(str(cfg.get("optimized_metric")))
+    return None if value is None else float(value)
+
+
+if __name__ == "__main__":
+    main()

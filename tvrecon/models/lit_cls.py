@@ -1,0 +1,164 @@
+"""LightningModule of the N-touch tactile classifier (paper section 4.2, Table 2).
+
+Per training sample, ``num_touches`` of the object's valid touches are drawn at random (the paper: "during each
+training iteration, we randomly choose N tactile images"); validation and test take the first N valid touches so
+the numbers are reproducible. The network sees them stacked as ``(B, N, 3, h, w)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+__all__ = ["ClassificationModule", "select_touches"]
+
+
+def select_touches(
+    tactile: Tensor, touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False
+) -> Tensor:
+    """Pick ``n`` valid touches per sample.
+
+    Args:
+        tactile: (B, T, 3, h, w) float tactile images, padded.
+        touch_mask: (B, T) bool, True for real touches.
+        n: touches to keep per sample, 1 <= n <= T.
+        generator: RNG for ``random=True``.
+        random: draw the touches uniformly among the valid ones (training) instead of taking the first n.
+
+    Returns:
+        (B, n, 3, h, w) float.
+    """
+    if tactile.dim() != 5 or tactile.shape[2] != 3:
+        raise ValueError(f"tactile must have shape (B, T, 3, h, w), got {tuple(tactile.shape)}")
+    B, T = tactile.shape[:2]
+    if touch_mask.shape != (B, T):
+        raise ValueError(f"touch_mask must have shape (B, T) = {(B, T)}, got {tuple(touch_mask.shape)}")
+    if not 1 <= n <= T:
+        raise ValueError(f"n must be in [1, T={T}], got {n}")
+    valid = touch_mask.sum(1)
+    if bool((valid < n).any()):
+        raise ValueError(
+            f"every sample needs at least {n} valid touches, got as few as {int(valid.min())}: generate more touches "
+            f"per object (data touches_per_object) or lower model.num_touches"
+        )
+    if random:
+        score = torch.rand(B, T, generator=generator, device="cpu").to(tactile.device)
+    else:
+        score = torch.arange(T, dtype=torch.float32, device=tactile.device).expand(B, T)
+    score = score.masked_fill(~touch_mask, float("inf"))
+    idx = score.argsort(dim=1)[:, :n]  # (B, n)
+    return tactile[torch.arange(B, device=tactile.device)[:, None], idx]
+
+
+class ClassificationModule(L.LightningModule):
+    """Cross-entropy training of a tactile classifier over N touches.
+
+    Args:
+        net: built classifier, ``forward(tactile (B, N, 3, h, w)) -> logits (B, num_classes)``.
+        optimizer: partial optimizer (``_partial_: true``), called with the parameters.
+        scheduler: partial LR scheduler called with the optimizer, or None.
+        num_touches: N touches per training sample (the paper trains one model per N; Table 2 sweeps
+            ``model.num_touches=1,2,4,6,8,10 seed=0,1,2``). The data must provide at least N valid touches.
+        touch_sampling: ``"fixed"`` trains with exactly N touches and tests with N only (paper protocol);
+            ``"random"`` trains with n ~ U{1..N} touches per batch (the rest masked out) and tests every count
+            of ``eval_touches`` up to N, so one model fills a whole Table 2 row.
+        eval_touches: touch counts evaluated at test time with ``touch_sampling="random"``.
+        name: experiment name for the result dict and tables.
+        seed: run seed, recorded in the result dict (Table 2 averages over seeds).
+    """
+
+    def __init__(
+        self,
+        net: nn.Module,
+        optimizer: Callable[..., torch.optim.Optimizer],
+        scheduler: Callable[..., Any] | None = None,
+        num_touches: int = 1,
+        touch_sampling: str = "fixed",
+        eval_touches: Sequence[int] | None = None,
+        name: str = "classify",
+        seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters(logger=False, ignore=["net"])
+        self.net = net
+        if touch_sampling not in ("fixed", "random"):
+            raise ValueError(f"touch_sampling must be 'fixed' or 'random', got {touch_sampling!r}")
+        limit = getattr(net, "num_touches", None)
+        if num_touches < 1 or (limit is not None and int(num_touches) > int(limit)):
+            raise ValueError(f"num_touches must be in [1, {limit}] (the classifier's maximum), got {num_touches}")
+        self.num_touches = int(num_touches)
+        self.touch_sampling = touch_sampling
+        if touch_sampling == "fixed" or eval_touches is None:
+            self.eval_touches = [self.num_touches]
+        else:
+            self.eval_touches = sorted({int(k) for k in eval_touches if 1 <= int(k) <= self.num_touches})
+        self._correct: dict[int, Tensor] = {}
+        self._total: dict[int, Tensor] = {}
+        self.test_results: dict[str, Any] | None = None
+
+    def forward(self, tactile: Tensor) -> Tensor:
+        """Args: tactile (B, N, 3, h, w) float. Returns logits (B, num_classes) float."""
+        return self.net(tactile)
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+        x = select_touches(batch["tactile"], batch["touch_mask"], self.num_touches, random=True)
+        if self.touch_sampling == "random":
+            n = int(torch.randint(1, self.num_touches + 1, ()))
+            x = x[:, :n]
+        logits = self(x)
+        loss = F.cross_entropy(logits, batch["label"])
+        acc = (logits.argmax(1) == batch["label"]).float().mean()
+        B = x.shape[0]
+        self.log("train/loss", loss, prog_bar=True, batch_size=B)
+        self.log("train/acc", acc, prog_bar=True, batch_size=B)
+        return loss
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        x = select_touches(batch["tactile"], batch["touch_mask"], self.num_touches)
+        logits = self(x)
+        B = x.shape[0]
+        self.log("val/loss", F.cross_entropy(logits, batch["label"]), prog_bar=True, batch_size=B, sync_dist=True)
+        acc = (logits.argmax(1) == batch["label"]).float().mean()
+        self.log("val/acc", acc, prog_bar=True, batch_size=B, sync_dist=True)
+
+    def on_test_epoch_start(self) -> None:
+        self._correct = {k: torch.zeros((), device=self.device) for k in self.eval_touches}
+        self._total = {k: torch.zeros((), device=self.device) for k in self.eval_touches}
+
+    def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        available = int(batch["touch_mask"].sum(1).min())
+        for k in self.eval_touches:
+            if k > available:
+                continue
+            logits = self(select_touches(batch["tactile"], batch["touch_mask"], k))
+            self._correct[k] += (logits.argmax(1) == batch["label"]).sum()
+            self._total[k] += logits.shape[0]
+
+    def on_test_epoch_end(self) -> None:
+        accuracy: dict[str, float] = {}
+        for k in self.eval_touches:
+            correct = self.trainer.strategy.reduce(self._correct[k], reduce_op="sum")
+            total = self.trainer.strategy.reduce(self._total[k], reduce_op="sum")
+            if float(total) == 0:
+                continue
+            accuracy[str(k)] = float(correct) / float(total)
+            self.log(f"test/acc@{k}", accuracy[str(k)], sync_dist=False)
+        self.test_results = {
+            "task": "classification",
+            "name": self.hparams.name,
+            "seed": self.hparams.seed,
+            "num_touches": self.num_touches,
+            "accuracy": accuracy,
+        }
+
+    def configure_optimizers(self) -> Any:
+        optimizer = self.hparams.optimizer(params=self.trainer.model.parameters())
+        if self.hparams.scheduler is None:
+            return {"optimizer": optimizer}
+        scheduler = self.hparams.scheduler(optimizer=optimizer)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}
