@@ -1,0 +1,90 @@
+"""Collider signed distances and normals: analytic shapes and the mesh table against the analytic sphere."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from tvrecon.sim.colliders import Collider, MeshCollider, PlaneCollider, SphereCollider
+
+DX = 1.0 / 128
+REGION = (
+    np.array([0.5 - 12 * DX, 0.5 - 12 * DX, 0.4 - 6 * DX]),
+    np.array([0.5 + 12 * DX, 0.5 + 12 * DX, 0.4 + 6 * DX]),
+)
+
+
+def test_sphere_sdf_and_normal():
+    col = SphereCollider((0.5, 0.5, 0.3), 0.1)
+    p = torch.tensor([[0.5, 0.5, 0.3], [0.5, 0.5, 0.45], [0.5, 0.55, 0.3], [0.65, 0.5, 0.3]])
+    assert torch.allclose(col.sdf(p), torch.tensor([-0.1, 0.05, -0.05, 0.05]), atol=1e-6)
+    n = col.normal(p)
+    assert torch.allclose(n[1:], torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]))
+    assert torch.allclose(n.norm(dim=1), torch.ones(4))
+    assert isinstance(col, Collider)
+
+
+def test_plane_sdf_and_normal():
+    col = PlaneCollider((0.0, 0.0, 0.2), (0.0, 0.0, 2.0))
+    p = torch.tensor([[0.3, 0.1, 0.1], [0.9, 0.9, 0.25]])
+    assert torch.allclose(col.sdf(p), torch.tensor([-0.1, 0.05]), atol=1e-6)
+    assert torch.allclose(col.normal(p), torch.tensor([[0.0, 0.0, 1.0]] * 2))
+
+
+def _sphere_mesh():
+    m = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    m.apply_translation([0.5, 0.5, 0.3])
+    return m
+
+
+def _near_surface_points(n=4000):
+    g = torch.Generator().manual_seed(0)
+    lo, hi = (torch.as_tensor(r, dtype=torch.float32) for r in REGION)
+    return lo + (hi - lo) * torch.rand(n, 3, generator=g)
+
+
+def test_mesh_collider_matches_analytic_sphere():
+    mc = MeshCollider(_sphere_mesh(), n_grid=128, region=REGION)
+    ref = SphereCollider((0.5, 0.5, 0.3), 0.1)
+    p = _near_surface_points()
+    d = ref.sdf(p)
+    near = d.abs() < 3 * DX  # the table clamps |sdf| at 4 cells (only the sign matters farther away)
+    assert near.sum() > 500
+    assert (mc.sdf(p) - d)[near].abs().max() < 0.2 * DX  # polygonal sphere + sampled distance
+    assert ((mc.sdf(p) < 0) != (d < 0))[d.abs() > 0.2 * DX].sum() == 0
+    assert (mc.normal(p) - ref.normal(p))[near].norm(dim=1).max() < 0.15
+    assert mc.sdf(p).dtype == torch.float32
+
+
+def test_mesh_collider_open_mesh_has_solid_shell():
+    """A sphere with its bottom cap removed (not watertight) still blocks a pad arriving from above."""
+    m = _sphere_mesh()
+    open_mesh = trimesh.Trimesh(m.vertices, m.faces[m.face_normals[:, 2] > -0.3], process=False)
+    assert not open_mesh.is_watertight
+    mc = MeshCollider(open_mesh, n_grid=128, region=REGION)
+    top = torch.tensor([[0.5, 0.5, 0.4 - 0.3 * DX], [0.5, 0.5, 0.4 + 2 * DX], [0.52, 0.5, 0.4 - 0.2 * DX]])
+    sdf = mc.sdf(top)
+    assert sdf[0] < 0 and sdf[2] < 0  # just under the cap: solid
+    assert sdf[1] > 0  # above: free
+    assert mc.normal(top)[1, 2] > 0.9  # outward normal points up
+
+
+def test_mesh_collider_outside_region_is_outside():
+    mc = MeshCollider(_sphere_mesh(), n_grid=128, region=REGION)
+    far = torch.tensor([[0.9, 0.9, 0.9]])
+    assert mc.sdf(far)[0] > 0.3
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="radius"):
+        SphereCollider((0.5, 0.5, 0.5), 0.0)
+    with pytest.raises(ValueError, match="non-zero"):
+        PlaneCollider((0, 0, 0), (0, 0, 0))
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        SphereCollider((0.5, 0.5, 0.5), 0.1).sdf(torch.zeros(3))
+    with pytest.raises(ValueError, match="empty"):
+        MeshCollider(trimesh.Trimesh(), n_grid=32)
+    bad = _sphere_mesh()
+    bad.vertices[0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        MeshCollider(bad, n_grid=32)
