@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import tempfile
 from collections.abc import Callable, Sequence
@@ -11,6 +12,8 @@ import numpy as np
 import trimesh
 from PIL import Image, ImageDraw
 from tqdm import tqdm
+
+log = logging.getLogger(__name__)
 
 
 def render_mesh(mesh: trimesh.Trimesh, size: int = 128, view: Sequence[float] = (1.0, -1.4, 1.1)) -> np.ndarray:
@@ -61,6 +64,7 @@ def contact_sheet(
         try:
             tile = Image.fromarray(render_mesh(build(cls, i), size))
         except Exception as err:  # show the failure in the sheet instead of aborting the whole figure
+            log.warning("contact sheet: %s instance %d failed: %s", cls, i, err)
             tile = Image.new("RGB", (size, size), (255, 200, 200))
             ImageDraw.Draw(tile).text((4, size // 2), f"error: {type(err).__name__}", fill="black")
         sheet.paste(tile, (x0 + i * size, y0 + label_h))

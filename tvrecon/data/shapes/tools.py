@@ -42,17 +42,15 @@ def wrench(rng: np.random.Generator) -> trimesh.Trimesh:
     head_a = Point(length / 2, 0.0).buffer(rh, 32)
     slot = affinity.rotate(sbox(0.0, -jaw / 2, rh * 2.5, jaw / 2), tilt, origin=(0, 0), use_radians=True)
     slot = affinity.translate(slot, length / 2 + rh * 0.05, 0.0)
-    head_a = head_a.difference(slot)
     head_b = Point(-length / 2, 0.0).buffer(rh * uniform(rng, 0.9, 1.1), 32)
-    if rng.random() < 0.7:
-        hole = unary_union(
-            [regular_polygon(6, jaw * 0.55, (-length / 2, 0.0), p) for p in (0.0, np.pi / 6)]
-        )  # 12-point box end
-        head_b = head_b.difference(hole)
-    else:
+    if rng.random() < 0.7:  # 12-point box end
+        cut_b = unary_union([regular_polygon(6, jaw * 0.55, (-length / 2, 0.0), p) for p in (0.0, np.pi / 6)])
+    else:  # second, smaller open jaw
         slot_b = affinity.rotate(sbox(-rh * 2.5, -jaw * 0.4, 0.0, jaw * 0.4), -tilt, origin=(0, 0), use_radians=True)
-        head_b = head_b.difference(affinity.translate(slot_b, -length / 2 - rh * 0.05, 0.0))
-    outline = unary_union([handle, head_a, head_b]).buffer(-0.012).buffer(0.012)  # round off knife-edge jaw tips
+        cut_b = affinity.translate(slot_b, -length / 2 - rh * 0.05, 0.0)
+    # cut after the union so the handle does not fill the jaws; the opening rounds off knife-edge jaw tips
+    outline = unary_union([handle, head_a, head_b]).difference(slot).difference(cut_b)
+    outline = outline.buffer(-0.012).buffer(0.012)
     return extrude(outline, uniform(rng, 0.04, 0.055) * (length + 2 * rh))
 
 
