@@ -90,6 +90,20 @@ def test_parts_thick_enough_for_voxels(name: str) -> None:
         assert np.quantile(d, 0.05) >= floor, f"{name} seed {seed}: 5% thickness quantile {np.quantile(d, 0.05):.4f}"
 
 
+@pytest.mark.parametrize(
+    ("name", "euler"),
+    [("torus", 0), ("mug", 0), ("nut", 0), ("key", 0), ("scissors", -2), ("padlock", 0), ("ball", 2), ("cup", 2)],
+)
+def test_topology(name: str, euler: int) -> None:
+    """Through-holes are really open (Euler characteristic 2 - 2 * genus): rings, handles, bores, shackles."""
+    for seed in (0, 1):
+        assert _shape(name, seed).euler_number == euler, f"{name} seed {seed}"
+
+
+def test_gear_has_a_bore() -> None:
+    assert all(_shape("gear", seed).euler_number <= 0 for seed in (0, 1))
+
+
 def test_make_shape_bad_input() -> None:
     with pytest.raises(ValueError, match="unknown shape class 'teapot'"):
         make_shape("teapot")

@@ -77,6 +77,9 @@ def contact_sheet(
     os.close(fd)
     try:
         sheet.save(tmp, format="PNG")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the figure the usual permissions
         os.replace(tmp, out)
     finally:
         if os.path.exists(tmp):
