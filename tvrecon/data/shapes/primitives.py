@@ -40,11 +40,6 @@ def rotation(axis: ArrayLike, angle: float) -> np.ndarray:
     return trimesh.transformations.rotation_matrix(angle, np.asarray(axis, dtype=float))
 
 
-def translation(offset: ArrayLike) -> np.ndarray:
-    """(4,4) float64 homogeneous translation by ``offset`` (3,)."""
-    return trimesh.transformations.translation_matrix(np.asarray(offset, dtype=float))
-
-
 def moved(
     mesh: trimesh.Trimesh, *, rotate: np.ndarray | None = None, offset: ArrayLike | None = None
 ) -> trimesh.Trimesh:
@@ -71,17 +66,6 @@ def cylinder(
 ) -> trimesh.Trimesh:
     """Closed cylinder of ``radius`` and ``height`` along ``axis`` (3,), centred at ``center`` (3,)."""
     mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=sections)
-    return moved(mesh, rotate=_align_z(axis), offset=center)
-
-
-def capsule(
-    radius: float,
-    length: float,
-    center: ArrayLike = (0.0, 0.0, 0.0),
-    axis: ArrayLike = (0.0, 0.0, 1.0),
-) -> trimesh.Trimesh:
-    """Capsule whose cylindrical part has ``length`` (total length ``length + 2 radius``) along ``axis``."""
-    mesh = trimesh.creation.capsule(height=length, radius=radius, count=[SECTIONS // 2, SECTIONS // 2])
     return moved(mesh, rotate=_align_z(axis), offset=center)
 
 

@@ -15,7 +15,6 @@ from tvrecon.data.shapes.primitives import (
     difference,
     extrude,
     lathe,
-    moved,
     rotation,
     smooth_curve,
     tube,
@@ -272,4 +271,4 @@ def banana(rng: np.random.Generator) -> trimesh.Trimesh:
     path = np.stack([bend_r * np.sin(a), np.zeros_like(s), -bend_r * np.cos(a)], 1)
     radius = rmax * np.clip(np.sin(np.pi * np.clip((s - 0.08) / 0.92, 0, 1)) ** 0.45, 0.0, None)
     radius = np.maximum(radius, np.where(s < 0.15, rmax * 0.3, rmax * 0.12))
-    return moved(tube(path, radius, sides=30, lobes=5, lobe_depth=0.06))
+    return tube(path, radius, sides=30, lobes=5, lobe_depth=0.06)
