@@ -1,0 +1,194 @@
+"""Lightning datamodules of the generated datasets, built from ``configs/data/*.yaml``.
+
+Both datamodules take the dataset settings shared by all splits at the top level (seed, cache, sensor / press /
+touch configs, tactile resolution) and one mapping per split (``train``, ``val``, ``test``) with at least the split
+size and optionally ``classes``, ``split`` (object split of the library, default the split's own name),
+``instance_offset``, ``seed`` and any dataset argument to override for that split. The library's ``train``, ``val``
+and ``test`` objects never share a shape seed, so validation and test objects are never seen in training.
+
+Batches come from the default collate: reconstruction ``tactile (B,T,3,h,w)``, ``touch_mask (B,T)`` with
+T = ``max_touches`` (padded), classification ``tactile (B,N,3,h,w)``, ``touch_mask (B,N)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+from lightning import LightningDataModule
+from torch.utils.data import DataLoader
+
+from tvrecon.data.datasets import GeneratedDataset, ReconstructionDataset, TactileClassificationDataset
+from tvrecon.data.shapes import ObjectLibrary
+
+__all__ = ["ReconstructionDataModule", "ClassificationDataModule", "worker_init"]
+
+_SPLITS = ("train", "val", "test")
+
+
+def worker_init(worker_id: int) -> None:
+    """Dataloader worker init: one torch thread per worker (the workers already run in parallel)."""
+    torch.set_num_threads(1)
+
+
+def _plain(value: Any) -> Any:
+    try:
+        from omegaconf import DictConfig, ListConfig, OmegaConf
+
+        if isinstance(value, DictConfig | ListConfig):
+            return OmegaConf.to_container(value, resolve=True)
+    except ImportError:  # pragma: no cover
+        pass
+    return value
+
+
+class _GeneratedDataModule(LightningDataModule):
+    dataset_cls: type[GeneratedDataset] = GeneratedDataset
+    size_key = "num_items"
+
+    def __init__(
+        self,
+        train: Mapping[str, Any],
+        val: Mapping[str, Any] | None = None,
+        test: Mapping[str, Any] | None = None,
+        batch_size: int = 4,
+        eval_batch_size: int | None = None,
+        num_workers: int = 0,
+        persistent_workers: bool = False,
+        pin_memory: bool = False,
+        pregenerate: bool = False,
+        pregenerate_workers: int | None = None,
+        library: ObjectLibrary | Mapping[str, Any] | None = None,
+        cache_dir: str | Path | None = None,
+        seed: int = 0,
+        **dataset_kwargs: Any,
+    ) -> None:
+        super().__init__()
+        if int(batch_size) < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if int(num_workers) < 0:
+            raise ValueError(f"num_workers must be >= 0, got {num_workers}")
+        self.splits: dict[str, dict[str, Any] | None] = {
+            "train": dict(_plain(train)),
+            "val": dict(_plain(val)) if val else None,
+            "test": dict(_plain(test)) if test else None,
+        }
+        for name, split in self.splits.items():
+            if split is not None and self.size_key not in split:
+                raise ValueError(f"data split {name!r} needs {self.size_key!r} (its size), got keys {sorted(split)}")
+        self.batch_size = int(batch_size)
+        self.eval_batch_size = int(eval_batch_size) if eval_batch_size else self.batch_size
+        self.num_workers = int(num_workers)
+        self.persistent_workers = bool(persistent_workers) and self.num_workers > 0
+        self.pin_memory = bool(pin_memory)
+        self.pregenerate = bool(pregenerate)
+        self.pregenerate_workers = pregenerate_workers
+        library = _plain(library)
+        self.library = library if isinstance(library, ObjectLibrary) else ObjectLibrary(**(library or {}))
+        self.cache_dir = None if cache_dir is None else str(cache_dir)
+        self.seed = int(seed)
+        self.dataset_kwargs = {k: _plain(v) for k, v in dataset_kwargs.items()}
+        self.datasets: dict[str, GeneratedDataset] = {}
+
+    # ------------------------------------------------------------------ datasets
+    def _split_args(self, name: str) -> dict[str, Any]:
+        split = self.splits.get(name)
+        if split is None:
+            raise ValueError(f"this datamodule has no {name!r} split configured")
+        args: dict[str, Any] = {"split": name, "seed": self.seed}  # the library keeps the three splits disjoint
+        args.update(self.dataset_kwargs)
+        args.update(split)
+        return args
+
+    def make_dataset(self, name: str, **overrides: Any) -> GeneratedDataset:
+        """Build the dataset of split ``name`` (``train``/``val``/``test``) with optional argument overrides.
+
+        E.g. ``dm.make_dataset("test", num_touches=5)`` for evaluation with a fixed number of touches: load-time
+        options like this reuse the cache of the full split.
+        """
+        args = self._split_args(name)
+        args.update(overrides)
+        return self.dataset_cls(library=self.library, cache_dir=self.cache_dir, **args)
+
+    def available_splits(self) -> list[str]:
+        return [n for n in _SPLITS if self.splits.get(n) is not None]
+
+    def prepare_data(self) -> None:
+        """Pre-generate every configured split into the cache when ``pregenerate`` is set (rank 0 only)."""
+        if not self.pregenerate:
+            return
+        from tvrecon.data.generate import pregenerate
+
+        for name in self.available_splits():
+            pregenerate(self.make_dataset(name), workers=self.pregenerate_workers, desc=name)
+
+    def setup(self, stage: str | None = None) -> None:
+        wanted = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",), "predict": ("test",)}
+        names = wanted.get(stage, _SPLITS) if stage else _SPLITS
+        for name in names:
+            if self.splits.get(name) is not None and name not in self.datasets:
+                self.datasets[name] = self.make_dataset(name)
+
+    def _loader(self, name: str, shuffle: bool) -> DataLoader:
+        if name not in self.datasets:
+            self.setup(None)
+        if name not in self.datasets:
+            raise ValueError(f"this datamodule has no {name!r} split configured")
+        return DataLoader(
+            self.datasets[name],
+            batch_size=self.batch_size if name == "train" else self.eval_batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            persistent_workers=self.persistent_workers,
+            pin_memory=self.pin_memory,
+            worker_init_fn=worker_init if self.num_workers > 0 else None,
+            generator=torch.Generator().manual_seed(self.seed) if shuffle else None,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+
+class ReconstructionDataModule(_GeneratedDataModule):
+    """Datamodule of :class:`~tvrecon.data.datasets.ReconstructionDataset` splits.
+
+    Split mappings need ``num_samples``. Shared dataset arguments (``min_touches``, ``max_touches``,
+    ``num_touches``, ``num_points``, ``tactile_size``, ``tactile_scale``, ``sensor``, ``press``, ``touch``,
+    ``render``) are given at the top level and can be overridden per split.
+
+    Batch: image (B,3,H,W), K (B,3,3), RT (B,3,4), tactile (B,T,3,h,w), positions (B,T,3), directions (B,T,3),
+    touch_mask (B,T) bool, points (B,N,3), normals (B,N,3), label (B,) int64 with T = max_touches.
+    """
+
+    dataset_cls = ReconstructionDataset
+    size_key = "num_samples"
+
+
+class ClassificationDataModule(_GeneratedDataModule):
+    """Datamodule of :class:`~tvrecon.data.datasets.TactileClassificationDataset` splits.
+
+    Split mappings need ``num_objects``; ``touches_per_object`` and ``num_touches`` (N) are shared arguments.
+    Batch: tactile (B,N,3,h,w), touch_mask (B,N) bool, positions (B,N,3), directions (B,N,3), label (B,) int64.
+    """
+
+    dataset_cls = TactileClassificationDataset
+    size_key = "num_objects"
+
+    @property
+    def num_touches(self) -> int:
+        return int(self.dataset_kwargs.get("num_touches", 1))
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.library.classes)

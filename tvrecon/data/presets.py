@@ -1,0 +1,98 @@
+"""Data presets: the paper's Table 1 split sizes and the Hydra configs ``configs/data/<preset>.yaml``.
+
+The YAML files are the source of truth for training (``python train.py data=small``); this module holds the
+paper's numbers, counts what a datamodule config generates (:func:`split_sizes`) so tests can check that
+``paper.yaml`` / ``cls_paper.yaml`` reproduce Table 1, and composes a preset by name (:func:`compose_preset`) for the
+``generate`` CLI.
+
+Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
+
+- ``paper``: Table 1 (classification 35 classes, 5,500 train / 1,500 test tactile images; reconstruction 35 classes
+  6,500 tactile / 650 visual train, 10 classes 500 tactile / 50 visual test), 224 x 224 images and tactile maps,
+  64 x 64 sensor pad on a 128^3 grid.
+- ``small``: a CPU-sized version (10 reconstruction classes, lower sensor and image resolution) that generates in
+  about 10 to 20 minutes and trains in about an hour on 2 cores.
+- ``tiny``: a few objects of 3 classes with a 12 x 12 pad and 64 px views, for tests and the smoke experiment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+__all__ = ["SplitSize", "TABLE1", "PRESETS", "CONFIG_DIR", "split_sizes", "compose_preset", "preset_names"]
+
+#: ``configs/data`` of the repository (the package is installed in editable mode next to ``configs/``).
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "data"
+
+PRESETS = ("tiny", "small", "paper")
+
+
+@dataclass(frozen=True)
+class SplitSize:
+    """Size of one split: number of classes, tactile images and visual views."""
+
+    classes: int
+    tactile: int
+    visual: int
+
+
+#: Paper Table 1 (train and test splits of both tasks).
+TABLE1: dict[str, dict[str, SplitSize]] = {
+    "classification": {"train": SplitSize(35, 5500, 0), "test": SplitSize(35, 1500, 0)},
+    "reconstruction": {"train": SplitSize(35, 6500, 650), "test": SplitSize(10, 500, 50)},
+}
+
+
+def preset_names() -> list[str]:
+    """Names of the YAML presets present in :data:`CONFIG_DIR` (e.g. ``tiny``, ``cls_small``)."""
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
+
+
+def _get(cfg: Mapping[str, Any], key: str, default: Any = None) -> Any:
+    value = cfg.get(key, default)
+    return default if value is None else value
+
+
+def split_sizes(cfg: Mapping[str, Any] | DictConfig, num_library_classes: int = 35) -> dict[str, SplitSize]:
+    """What a datamodule config generates per split (``train``, ``val``, ``test``).
+
+    Reconstruction (``_target_`` ends with ``ReconstructionDataModule``): each sample is one view with
+    ``max_touches`` cached touches. Classification: each object has ``touches_per_object`` touches.
+    ``classes: null`` in a split means all ``num_library_classes`` classes.
+    """
+    if isinstance(cfg, DictConfig):
+        cfg = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
+    target = str(cfg.get("_target_", ""))
+    if target.endswith("ReconstructionDataModule"):
+        per_item, visual = int(_get(cfg, "max_touches", 10)), True
+        count_key = "num_samples"
+    elif target.endswith("ClassificationDataModule"):
+        per_item, visual = int(_get(cfg, "touches_per_object", 10)), False
+        count_key = "num_objects"
+    else:
+        raise ValueError(f"config _target_ must be a Reconstruction/ClassificationDataModule, got {target!r}")
+    out = {}
+    for name in ("train", "val", "test"):
+        split = cfg.get(name)
+        if not split:
+            continue
+        n = int(split[count_key])
+        classes: Sequence[str] | None = split.get("classes")
+        n_cls = num_library_classes if classes is None else len(classes)
+        out[name] = SplitSize(min(n_cls, n), n * per_item, n if visual else 0)
+    return out
+
+
+def compose_preset(name: str, overrides: Sequence[str] = ()) -> DictConfig:
+    """Compose ``configs/data/<name>.yaml`` with Hydra command-line style ``overrides`` (``key=value``)."""
+    from hydra import compose, initialize_config_dir
+
+    if not (CONFIG_DIR / f"{name}.yaml").is_file():
+        raise ValueError(f"unknown data preset {name!r}; available: {preset_names()} (in {CONFIG_DIR})")
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose(config_name=name, overrides=list(overrides))
