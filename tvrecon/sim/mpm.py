@@ -194,6 +194,7 @@ class MLSMPM:
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
+        self._shift_cache: dict[tuple[int, int, torch.device], Tensor] = {}
 
     # ------------------------------------------------------------------ helpers
     def _constants(self, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
@@ -296,18 +297,17 @@ class MLSMPM:
         base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
         lo, lin, D = self._layout(base_f, state.batch, B)
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
-        w_axis = torch.stack([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2], 2)  # (P,3,3)
-        w = (w_axis[:, 0, :, None, None] * w_axis[:, 1, None, :, None] * w_axis[:, 2, None, None, :]).reshape(P, 27)
-        strides = torch.tensor([D[1] * D[2], D[2], 1], device=device, dtype=torch.int64)
-        node = (lin[:, None] + (o_int * strides).sum(1)[None, :]).reshape(-1)  # (P*27,)
+        wx, wy, wz = (torch.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], 1) for f in fx.T)
+        w = ((wx[:, :, None] * wy[:, None, :]).reshape(P, 9, 1) * wz[:, None, :]).reshape(P, 27)  # o = (i, j, k)
         n_nodes = B * D[0] * D[1] * D[2]
+        offs = [(i * D[1] + j) * D[2] + k for i in range(3) for j in range(3) for k in range(3)]  # linear offsets
 
         # ---- stress (eq. 4) and the affine momentum matrix A = m C - (4 dt V0 / dx^2) P F^T (eq. 6)
         R = polar_decomposition(F)
         tau = fixed_corotated_kirchhoff(F, self.mu, self.lam, R)  # (P, 3, 3) = P(F) F^T
         m = state.mass
         A = m[:, None, None] * C - ((4.0 * dt * inv_dx * inv_dx) * state.volume)[:, None, None] * tau
-        # per node: w * (m v + A (x_i - x_p)) with x_i - x_p = (o - fx) dx  ->  w * M [1, o]^T
+        # per node: w * (m v + A (x_i - x_p)) with x_i - x_p = (o - fx) dx  ->  w * (M [1, o]) with M (P, 4, 4)
         mv0 = m[:, None] * v - dx * torch.matmul(A, fx[:, :, None])[:, :, 0]  # (P, 3)
         M = torch.cat(
             [
@@ -316,13 +316,18 @@ class MLSMPM:
             ],
             1,
         )  # (P, 4, 4)
-        contrib = torch.matmul(o_aug_t, M.transpose(1, 2)) * w[:, :, None]  # (P, 27, 4): (m, m v) per node
+        contrib = torch.matmul(M.reshape(P * 4, 4), o_aug_t.T).view(P, 4, 27) * w[:, None, :]  # (P, 4, 27)
 
-        # ---- P2G (eq. 5-6): one fused scatter of (mass, momentum)
-        grid = torch.zeros(n_nodes, 4, dtype=dtype, device=device).index_add(0, node, contrib.reshape(-1, 4))
-        gm = grid[:, 0]
+        # ---- P2G (eq. 5-6): ONE scatter of each particle's whole 4 x 27 stencil onto its base node (P rows of 108),
+        # then the 27 stencil offsets are summed with shifted slice adds on the small grid.
+        G = torch.zeros(n_nodes, 108, dtype=dtype, device=device).index_add(0, lin, contrib.reshape(P, 108))
+        G = G.view(n_nodes, 4, 27)
+        grid = G[:, :, 0].T.contiguous()  # (4, N): offset 0
+        for o in range(1, 27):
+            grid = grid.index_add(1, self._shift_index(offs[o], n_nodes, device), G[: n_nodes - offs[o], :, o].T)
+        gm = grid[0]
         has_mass = gm > 0
-        gv = grid[:, 1:] / torch.where(has_mass, gm, torch.ones_like(gm))[:, None]  # eq. 7 (zero where m = 0)
+        gv = (grid[1:] / torch.where(has_mass, gm, torch.ones_like(gm))).T  # (N, 3), eq. 7 (zero where m = 0)
 
         # ---- grid operations: damping, colliders (momentum removed -> force)
         if self.cfg.damping > 0:
@@ -336,9 +341,11 @@ class MLSMPM:
                 f"{_FIX_HINT}"
             )
 
-        # ---- G2P (eq. 11-14)
-        vg = gv.index_select(0, node).reshape(P, 27, 3) * w[:, :, None]  # (P, 27, 3)
-        S = torch.matmul(vg.transpose(1, 2), o_aug_t)  # (P, 3, 4): [sum w v_i, sum w v_i o^T]
+        # ---- G2P (eq. 11-14): table H[n, c, o] = v_c(n + offset_o), one row gather per particle
+        gv_t = torch.cat([gv.T, gv.new_zeros(3, offs[-1])], 1)  # (3, N + max offset)
+        H = torch.stack([gv_t[:, off : off + n_nodes] for off in offs], 2).transpose(0, 1)  # (N, 3, 27)
+        vg = H.reshape(n_nodes, 81).index_select(0, lin).view(P, 3, 27) * w[:, None, :]  # (P, 3, 27)
+        S = torch.matmul(vg.reshape(P * 3, 27), o_aug_t).view(P, 3, 4)  # [sum w v_i, sum w v_i o^T]
         v_pic = S[:, :, 0]
         C_new = (4.0 * inv_dx) * (S[:, :, 1:] - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
         if alpha is None:  # alpha = 1 everywhere: the hand velocity has no weight
@@ -349,6 +356,16 @@ class MLSMPM:
         x_new = x + dt * v_new  # eq. 13
         F_new = F + dt * torch.matmul(C_new, F)  # eq. 14: (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
+
+    def _shift_index(self, off: int, n_nodes: int, device: torch.device) -> Tensor:
+        """(N - off,) int64 indices off .. N - 1 (cached)."""
+        key = (off, n_nodes, device)
+        idx = self._shift_cache.get(key)
+        if idx is None:
+            if len(self._shift_cache) > 256:
+                self._shift_cache.clear()
+            idx = self._shift_cache[key] = torch.arange(off, n_nodes, device=device)
+        return idx
 
     def _apply_colliders(
         self,
