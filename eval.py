@@ -25,7 +25,7 @@ import hydra  # noqa: E402
 import lightning as L  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
-from train import report_tables, save_results  # noqa: E402
+from train import fix_test_touches, report_tables, save_results  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -101,6 +101,7 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         else:
             run_cfg.model.eval_touches = list(cfg.eval_touches)
             run_cfg.model.export = bool(cfg.export)
+    fix_test_touches(run_cfg.data)
     L.seed_everything(int(cfg.seed), workers=True)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(run_cfg.data)
     model: L.LightningModule = hydra.utils.instantiate(run_cfg.model)

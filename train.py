@@ -26,7 +26,7 @@ os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 import hydra  # noqa: E402
 import lightning as L  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
 from tvrecon.tables import atomic_write_text, build_tables, format_tables, write_tables  # noqa: E402
 from tvrecon.viz import plot_loss_curves  # noqa: E402
@@ -77,6 +77,21 @@ def _csv_metrics(trainer: L.Trainer) -> Path | None:
     return None
 
 
+def fix_test_touches(data_cfg: DictConfig) -> None:
+    """Give every reconstruction test sample ``max_touches`` touches (``data.test.num_touches``), in place.
+
+    The reconstruction datasets draw T in [min_touches, max_touches] per sample; the test modes mask to the first
+    k = 2, 5, 10 touches, which only means k touches when every test sample has at least k. Classification data
+    and an explicit ``data.test.num_touches`` are left alone.
+    """
+    if not str(data_cfg.get("_target_", "")).endswith("ReconstructionDataModule") or not data_cfg.get("test"):
+        return
+    if data_cfg.test.get("num_touches") is None and data_cfg.get("max_touches") is not None:
+        with open_dict(data_cfg):
+            data_cfg.test.num_touches = int(data_cfg.max_touches)
+        log.info("test split: every sample gets data.max_touches=%d touches", int(data_cfg.max_touches))
+
+
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit then test the model described by ``cfg`` (the composed ``configs/train.yaml``).
 
@@ -84,11 +99,18 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ``{"metrics": {name: float}, "result": test result dict | None, "tables": str, "output_dir": str,
         "best_ckpt": str | None}``.
     """
+    ckpt_path = cfg.get("ckpt_path")
+    if ckpt_path is not None and not Path(ckpt_path).is_file():
+        raise FileNotFoundError(
+            f"ckpt_path={ckpt_path} does not exist: pass the checkpoints/last.ckpt of an earlier run to resume, "
+            f"or drop ckpt_path to start from scratch"
+        )
     if cfg.get("seed") is not None:
         L.seed_everything(int(cfg.seed), workers=True)
     out_dir = Path(cfg.paths.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
+    fix_test_touches(cfg.data)
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
     log.info("Instantiating model <%s>", cfg.model._target_)
@@ -99,12 +121,6 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     for lg in trainer.loggers:
         lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=False))  # type: ignore[arg-type]
 
-    ckpt_path = cfg.get("ckpt_path")
-    if ckpt_path is not None and not Path(ckpt_path).is_file():
-        raise FileNotFoundError(
-            f"ckpt_path={ckpt_path} does not exist: pass the checkpoints/last.ckpt of an earlier run to resume, "
-            f"or drop ckpt_path to start from scratch"
-        )
     if cfg.get("train"):
         log.info("Starting training")
         trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)

@@ -84,7 +84,11 @@ class ClassificationModule(L.LightningModule):
         seed: int | None = None,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(logger=False, ignore=["net"])
+        # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
+        # plain data only and load with torch.load(weights_only=True); the model is rebuilt from the run's config
+        self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
+        self.optimizer_factory = optimizer
+        self.scheduler_factory = scheduler
         self.net = net
         if touch_sampling not in ("fixed", "random"):
             raise ValueError(f"touch_sampling must be 'fixed' or 'random', got {touch_sampling!r}")
@@ -157,8 +161,8 @@ class ClassificationModule(L.LightningModule):
         }
 
     def configure_optimizers(self) -> Any:
-        optimizer = self.hparams.optimizer(params=self.trainer.model.parameters())
-        if self.hparams.scheduler is None:
+        optimizer = self.optimizer_factory(params=self.trainer.model.parameters())
+        if self.scheduler_factory is None:
             return {"optimizer": optimizer}
-        scheduler = self.hparams.scheduler(optimizer=optimizer)
+        scheduler = self.scheduler_factory(optimizer=optimizer)
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}

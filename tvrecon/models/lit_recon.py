@@ -128,7 +128,11 @@ class ReconstructionModule(L.LightningModule):
         output_dir: str | None = None,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(logger=False, ignore=["net"])
+        # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
+        # plain data only and load with torch.load(weights_only=True); the model is rebuilt from the run's config
+        self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
+        self.optimizer_factory = optimizer
+        self.scheduler_factory = scheduler
         if not 1 <= min_touches <= max_touches:
             raise ValueError(f"need 1 <= min_touches <= max_touches, got {min_touches} and {max_touches}")
         if any(int(k) < 1 for k in eval_touches):
@@ -363,8 +367,8 @@ class ReconstructionModule(L.LightningModule):
         }
 
     def configure_optimizers(self) -> Any:
-        optimizer = self.hparams.optimizer(params=self.trainer.model.parameters())
-        if self.hparams.scheduler is None:
+        optimizer = self.optimizer_factory(params=self.trainer.model.parameters())
+        if self.scheduler_factory is None:
             return {"optimizer": optimizer}
-        scheduler = self.hparams.scheduler(optimizer=optimizer)
+        scheduler = self.scheduler_factory(optimizer=optimizer)
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}

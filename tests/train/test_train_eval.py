@@ -1,0 +1,136 @@
+"""The real Hydra configs: every experiment composes and instantiates; train.py and eval.py run end to end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+import pytest
+import torch
+from conftest import CONFIGS, compose_config
+from omegaconf import OmegaConf, open_dict
+
+EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
+RECON_ABLATIONS = {"full", "no_gap", "no_direction", "region_1x1", "region_5x5", "single_stage", "visual_only"}
+
+
+def test_every_ablation_has_an_experiment_config() -> None:
+    assert RECON_ABLATIONS | {"tactile_only", "classify", "smoke"} <= set(EXPERIMENTS)
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -> None:
+    cfg = compose_config("train", [f"experiment={experiment}"], tmp_path)
+    assert cfg.experiment_name == experiment
+    assert cfg.model.name == experiment
+    datamodule = hydra.utils.instantiate(cfg.data)
+    model = hydra.utils.instantiate(cfg.model)
+    if experiment == "classify":
+        assert type(datamodule).__name__ == "ClassificationDataModule"
+        assert model.num_touches == cfg.data.num_touches == model.net.num_touches
+        return
+    assert type(datamodule).__name__ == "ReconstructionDataModule"
+    net = model.net
+    expected_mode = {"visual_only": "visual_only", "tactile_only": "tactile_only"}.get(experiment, "fusion")
+    assert net.mode == expected_mode
+    if expected_mode == "visual_only":
+        assert net.fusion is None and net.tactile is None
+        return
+    fusion = net.fusion
+    assert fusion.use_gap == (experiment != "no_gap")
+    assert fusion.use_direction == (experiment != "no_direction")
+    assert fusion.region == {"region_1x1": 1, "region_5x5": 5}.get(experiment, 3)
+    assert len(fusion.pairs) == (4 if experiment == "single_stage" else 16)
+
+
+def test_paper_preset_optimizer_and_schedule(tmp_path: Path) -> None:
+    cfg = compose_config("train", ["experiment=full"], tmp_path)
+    model = hydra.utils.instantiate(cfg.model)
+    opt = model.optimizer_factory(params=[torch.nn.Parameter(torch.zeros(1))])
+    assert isinstance(opt, torch.optim.AdamW) and opt.param_groups[0]["lr"] == pytest.approx(2e-5)
+    sched = model.scheduler_factory(optimizer=opt)
+    assert isinstance(sched, torch.optim.lr_scheduler.CosineAnnealingLR) and sched.T_max == 50
+    assert cfg.trainer.max_epochs == 50
+
+
+def _synthetic(cfg, tmp_path: Path) -> None:
+    """Keep the composed real config, swap the data for the test-only synthetic datamodule."""
+    with open_dict(cfg):
+        cfg.data = OmegaConf.create({"_target_": "synthetic.SyntheticReconDataModule", "batch_size": 2, "n": 4})
+        cfg.model.metric_points = 200
+        cfg.model.eval_touches = [2, 5]
+
+
+def test_fast_dev_run_train_prints_tables(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from train import train
+
+    cfg = compose_config("train", ["experiment=smoke", "+trainer.fast_dev_run=true"], tmp_path)
+    _synthetic(cfg, tmp_path)
+    with open_dict(cfg):
+        cfg.model.export = False
+    out = train(cfg)
+    res = out["result"]
+    assert res["name"] == "smoke" and set(res["modes"]) == {"visual", "tv@2", "tv@5"}
+    assert (tmp_path / "metrics.json").is_file()
+    assert (tmp_path / "tables" / "table3.csv").is_file() and (tmp_path / "tables" / "table4.md").is_file()
+    printed = capsys.readouterr().out
+    assert "Table 3" in printed and "Table 4" in printed and "Ours (smoke, tiny data)" in printed
+
+
+@pytest.mark.slow
+def test_train_checkpoint_then_eval_writes_tables(tmp_path: Path) -> None:
+    from eval import evaluate
+    from train import train
+
+    run = tmp_path / "run"
+    overrides = [
+        "experiment=smoke", "trainer.max_epochs=1", "+trainer.limit_train_batches=1", "+trainer.limit_val_batches=1",
+        "+trainer.limit_test_batches=1", "model.render_every_n_epochs=0", "model.export=false", "logger=csv",
+    ]  # fmt: skip
+    cfg = compose_config("train", overrides, run)
+    _synthetic(cfg, tmp_path)
+    (run / ".hydra").mkdir(parents=True)
+    OmegaConf.save(cfg, run / ".hydra" / "config.yaml")  # what hydra.main writes for every run
+    out = train(cfg)
+    best = Path(out["best_ckpt"])
+    assert best.is_file() and (run / "checkpoints" / "last.ckpt").is_file()
+    assert (run / "loss_curves.png").is_file()
+
+    ev = compose_config("eval", [f"run_dir={run}", "eval_touches=[2]", "export=true"], tmp_path / "eval")
+    result = evaluate(ev)
+    [res] = result["results"]
+    assert res["name"] == "smoke" and set(res["modes"]) == {"visual", "tv@2"}
+    assert res["checkpoint"] == str(best)  # the best checkpoint is preferred over last.ckpt
+    tables = tmp_path / "eval" / "tables"
+    assert {p.name for p in tables.iterdir()} >= {"table3.md", "table3.csv", "table4.md", "table4.csv", "tables.md"}
+    assert "Ours (smoke, tiny data)" in (tables / "table3.md").read_text()
+    run_out = tmp_path / "eval" / "00_run"
+    assert (run_out / "metrics.json").is_file()
+    objs = sorted(p.name for p in (run_out / "meshes").glob("*.obj"))
+    assert objs == [f"{c}_{m}.obj" for c in ("bottle", "bowl", "can") for m in ("tv2", "visual")]
+    assert (run_out / "renders" / "test_bottle_tv2.png").is_file()
+
+
+def test_missing_checkpoint_names_path_and_command(tmp_path: Path) -> None:
+    from eval import evaluate
+
+    missing = tmp_path / "nope" / "last.ckpt"
+    cfg = compose_config("eval", [f"ckpt_path={missing}"], tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"checkpoint .*nope/last\.ckpt does not exist.*python train\.py"):
+        evaluate(cfg)
+    (tmp_path / "empty").mkdir()
+    cfg = compose_config("eval", [f"run_dir={tmp_path / 'empty'}"], tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"no checkpoints/\*\.ckpt below .*empty.*experiment=smoke"):
+        evaluate(cfg)
+    cfg = compose_config("eval", [], tmp_path)
+    with pytest.raises(ValueError, match="exactly one of ckpt_path"):
+        evaluate(cfg)
+
+
+def test_resume_from_missing_checkpoint_is_a_clear_error(tmp_path: Path) -> None:
+    from train import train
+
+    cfg = compose_config("train", ["experiment=smoke", f"ckpt_path={tmp_path / 'gone.ckpt'}"], tmp_path)
+    _synthetic(cfg, tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"ckpt_path=.*gone\.ckpt does not exist"):
+        train(cfg)
