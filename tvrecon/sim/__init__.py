@@ -1,0 +1,32 @@
+"""EIP tactile simulation: MLS-MPM in torch, sensor pad, press protocol (paper section 3).
+
+Public names::
+
+    MPMConfig, ParticleState, MLSMPM, cfl_dt           # the solver contract (mpm.py)
+    SphereCollider, PlaneCollider, MeshCollider          # rigid colliders (colliders.py)
+    SensorConfig, sensor_frame                           # the pad (sensor.py)
+    PressConfig, TactileReading, EIPSimulator            # the press protocol (press.py)
+"""
+
+from tvrecon.sim.colliders import MeshCollider, PlaneCollider, SphereCollider
+from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
+from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading, chamfer_eq13
+from tvrecon.sim.sensor import SensorConfig, alpha_profile, pad_lattice, sensor_frame
+
+__all__ = [
+    "MLSMPM",
+    "EIPSimulator",
+    "MPMConfig",
+    "MeshCollider",
+    "ParticleState",
+    "PlaneCollider",
+    "PressConfig",
+    "SensorConfig",
+    "SphereCollider",
+    "TactileReading",
+    "alpha_profile",
+    "cfl_dt",
+    "chamfer_eq13",
+    "pad_lattice",
+    "sensor_frame",
+]

@@ -1,0 +1,189 @@
+"""Pictures of tactile readings and pad particles (not object views: those live in ``tvrecon.data.render``).
+
+- :func:`save_tactile_png`: normal displacement as a colormap with shear arrows and a colorbar.
+- :func:`save_sequence_png`: the deformation over time, tactile images side by side with a cross-section of the pad.
+- :func:`save_ply`: pad particles as a coloured point cloud.
+
+All writes are atomic (temporary file in the same directory, then ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+import trimesh
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from torch import Tensor
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file in the same directory, then os.replace)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _save_figure(fig: Figure, path: str | Path, dpi: int) -> Path:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def _as_image(image: Tensor | np.ndarray) -> np.ndarray:
+    img = image.detach().cpu().numpy() if isinstance(image, Tensor) else np.asarray(image)
+    if img.ndim != 3 or img.shape[0] != 3:
+        raise ValueError(f"tactile image must have shape (3, H, W), got {tuple(img.shape)}")
+    if not np.isfinite(img).all():
+        raise ValueError("tactile image contains NaN or infinite values")
+    return img.astype(np.float32)
+
+
+def _draw_tactile(
+    ax, img: np.ndarray, vmax: float, arrows: bool, cmap: str = "inferno", shear_max: float | None = None
+):
+    """Draw normal displacement (colour) and shear (arrows, scaled by ``shear_max``) of one (3, H, W) image."""
+    H, W = img.shape[1:]
+    im = ax.imshow(img[2], cmap=cmap, vmin=0.0, vmax=vmax, origin="lower", interpolation="bilinear")
+    if arrows:
+        k = max(1, min(H, W) // 12)
+        ys, xs = np.mgrid[k // 2 : H : k, k // 2 : W : k]
+        u, v = img[0][ys, xs], img[1][ys, xs]
+        top = float(shear_max) if shear_max is not None else float(np.hypot(u, v).max())
+        if top > 1e-6:
+            ax.quiver(xs, ys, u, v, color="cyan", angles="xy", scale_units="xy", scale=top / (1.6 * k), width=0.006)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return im
+
+
+def save_tactile_png(
+    image: Tensor | np.ndarray, path: str | Path, title: str | None = None, vmax: float | None = None, dpi: int = 110
+) -> Path:
+    """Tactile image as a PNG: normal displacement colormap, shear arrows, colorbar in grid cells.
+
+    Args:
+        image: (3, H, W) float32 displacement in cells, channels (x shear, y shear, z normal).
+        path: output .png path. title: optional title. vmax: colour scale top (default: the image max).
+    Returns:
+        the written path.
+    """
+    img = _as_image(image)
+    top = float(vmax) if vmax is not None else max(float(img[2].max()), 1e-3)
+    fig = Figure(figsize=(5.2, 4.4))
+    ax = fig.add_subplot(1, 1, 1)
+    im = _draw_tactile(ax, img, top, arrows=True)
+    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+    cb.set_label("normal displacement into the pad (cells)")
+    shear = float(np.hypot(img[0], img[1]).max())
+    ax.set_xlabel(f"sensor x   (arrows: shear, max {shear:.3f} cells)")
+    ax.set_ylabel("sensor y")
+    ax.set_title(title or f"tactile image {img.shape[1]}x{img.shape[2]}, max normal {float(img[2].max()):.3f} cells")
+    return _save_figure(fig, path, dpi)
+
+
+def save_sequence_png(
+    frames: Tensor | np.ndarray,
+    path: str | Path,
+    steps: Sequence[int] | None = None,
+    sections: Sequence[np.ndarray] | None = None,
+    dpi: int = 100,
+) -> Path:
+    """The deformation over time: K tactile images side by side (shared colour scale), over pad cross-sections.
+
+    Args:
+        frames: (K, 3, H, W) float32 tactile images in cells.
+        path: output .png path.
+        steps: K step indices for the titles.
+        sections: K arrays (N_k, 3) of pad particles in the sensor frame (x, y, z), e.g. the middle particle row
+            of ``reading.particles`` mapped back with the frame; drawn as x-z scatter (z up = towards the hand,
+            z = 0 the object's first contact point, dashed).
+    Returns:
+        the written path.
+    """
+    arr = frames.detach().cpu().numpy() if isinstance(frames, Tensor) else np.asarray(frames)
+    if arr.ndim != 4 or arr.shape[1] != 3 or arr.shape[0] < 1:
+        raise ValueError(f"frames must have shape (K, 3, H, W) with K >= 1, got {tuple(arr.shape)}")
+    K = arr.shape[0]
+    if steps is not None and len(steps) != K:
+        raise ValueError(f"steps must have K={K} entries, got {len(steps)}")
+    if sections is not None and len(sections) != K:
+        raise ValueError(f"sections must have K={K} entries, got {len(sections)}")
+    top = max(float(arr[:, 2].max()), 1e-3)
+    shear_max = float(np.hypot(arr[:, 0], arr[:, 1]).max())
+    rows = 2 if sections is not None else 1
+    fig = Figure(figsize=(2.6 * K + 1.0, 2.7 * rows))
+    axes = fig.subplots(rows, K, squeeze=False)
+    im = None
+    for k in range(K):
+        img = _as_image(arr[k])
+        im = _draw_tactile(axes[0, k], img, top, arrows=True, shear_max=shear_max)
+        label = f"step {steps[k]}" if steps is not None else f"frame {k}"
+        axes[0, k].set_title(f"{label}\nmax {float(img[2].max()):.2f} cells", fontsize=9)
+    if sections is not None:
+        all_z = np.concatenate([np.asarray(sec)[:, 2] for sec in sections] + [np.zeros(1)])
+        zlo, zhi = float(all_z.min()), float(all_z.max())
+        for k, sec in enumerate(sections):
+            sec = np.asarray(sec)
+            ax = axes[1, k]
+            pts = sec
+            ax.axhline(0.0, color="0.6", lw=0.8, ls="--")  # the first point of the object the pad meets
+            ax.scatter(pts[:, 0], pts[:, 2], s=4, c=pts[:, 2], cmap="viridis", vmin=zlo, vmax=zhi)
+            ax.set_ylim(zlo - 0.05 * (zhi - zlo + 1e-9), zhi + 0.05 * (zhi - zlo + 1e-9))
+            ax.set_aspect("auto")
+            ax.set_xticks([])
+            ax.tick_params(labelsize=7)
+            ax.set_title("pad cross-section (x-z, cells)", fontsize=8)
+    assert im is not None
+    cb = fig.colorbar(im, ax=list(axes[0]), fraction=0.02, pad=0.01)
+    cb.set_label("normal (cells)", fontsize=8)
+    return _save_figure(fig, path, dpi)
+
+
+def save_ply(points: Tensor | np.ndarray, path: str | Path, values: Tensor | np.ndarray | None = None) -> Path:
+    """Pad particles as a PLY point cloud, coloured by ``values`` (viridis) when given.
+
+    Args:
+        points: (P, 3) float32 positions. values: (P,) float32 scalars for colour (e.g. displacement), or None.
+    Returns:
+        the written path.
+    """
+    pts = points.detach().cpu().numpy() if isinstance(points, Tensor) else np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise ValueError(f"points must have shape (P, 3) with P > 0, got {tuple(pts.shape)}")
+    colors = None
+    if values is not None:
+        val = values.detach().cpu().numpy() if isinstance(values, Tensor) else np.asarray(values)
+        if val.shape != (len(pts),):
+            raise ValueError(f"values must have shape (P,) = ({len(pts)},), got {tuple(val.shape)}")
+        lo, hi = float(val.min()), float(val.max())
+        rgba = colormaps["viridis"](Normalize(lo, hi if hi > lo else lo + 1.0)(val))
+        colors = (rgba * 255).astype(np.uint8)
+    data = trimesh.PointCloud(pts.astype(np.float64), colors=colors).export(file_type="ply")
+    return atomic_write_bytes(path, data if isinstance(data, bytes) else data.encode())
+
+
+def to_numpy(x: Tensor | np.ndarray) -> np.ndarray:
+    """Detach a tensor to numpy (helper for callers that mix both)."""
+    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
