@@ -157,3 +157,51 @@ def test_simulate_touches_batches_by_strength(torus: trimesh.Trimesh) -> None:
     assert all(n <= 4 for n, _ in sim.calls)
     n_depth = sum(s == {"depth": 2.0} for s in t["strengths"])
     assert len(sim.calls) == -(-n_depth // 4) + -(-(21 - n_depth) // 4)
+
+
+def _sim_available() -> bool:
+    try:
+        from tvrecon.sim.press import EIPSimulator  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@pytest.fixture
+def one_thread():
+    """Tiny simulations run far faster single-threaded on a busy 2-core machine (no oversubscription)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")
+def test_real_simulation_contact_images(one_thread) -> None:
+    """Pressing a small sphere along -normal: contact happens, the pad is pushed in (z > 0) most at its centre
+    (the contact patch of a sphere is a disk around the touch point), and a deeper press pushes further."""
+    from tvrecon.sim.press import EIPSimulator, PressConfig
+    from tvrecon.sim.sensor import SensorConfig
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.12)
+    policy = TouchPolicy(cone_deg=0.0, strengths=[{"depth": 0.75}, {"depth": 1.5}])
+    t = sample_touches(sphere, 2, seed=0, policy=policy)
+    t["strengths"] = [{"depth": 0.75}, {"depth": 1.5}]  # one of each
+    sim = EIPSimulator(SensorConfig(resolution=(16, 16)), PressConfig(n_grid=64))
+    readings = simulate_touches(sim, sphere, t, batch_size=2)
+    assert len(readings) == 2
+    centre_z = []
+    for r, pos in zip(readings, t["positions"]):
+        assert r.contact
+        assert r.image.shape == (3, 16, 16)
+        z = r.image[2]
+        centre, corners = z[6:10, 6:10].mean(), torch.stack([z[0, 0], z[0, -1], z[-1, 0], z[-1, -1]]).mean()
+        assert centre > 0.2 and centre > corners + 0.2
+        assert z.min() > -0.05  # nothing is pulled out of the pad
+        assert torch.dist(r.position, pos) < 0.05  # the reading sits where the touch was sampled
+        centre_z.append(centre.item())
+    assert readings[1].depth > readings[0].depth and centre_z[1] > centre_z[0]
+    # resized for the model, the contact stays non-zero at the centre
+    big = resize_tactile(torch.stack([r.image for r in readings]), 64)
+    assert big.shape == (2, 3, 64, 64) and (big[:, 2, 28:36, 28:36] > 0.2).all()

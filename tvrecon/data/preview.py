@@ -172,6 +172,7 @@ def make_preview(
     pad: int = 64,
     n_grid: int = 128,
     cone_deg: float = 15.0,
+    fov_deg: float = 35.0,
     device: str = "cpu",
 ) -> Path:
     """Generate one sample (object, view, touches, tactile readings) and write its preview PNG to `out`.
@@ -185,6 +186,7 @@ def make_preview(
         pad: sensor contact-layer resolution (pad x pad particles); smaller is faster.
         n_grid: simulation grid cells across the press domain.
         cone_deg: half-angle of the press-direction cone around the inward normal.
+        fov_deg: camera field of view in degrees (camera at distance 2 from the object centre).
         device: torch device of the simulation.
 
     Returns:
@@ -199,7 +201,7 @@ def make_preview(
     if int(touches) < 1:
         raise ValueError(f"touches must be >= 1, got {touches}")
     mesh = make_shape(shape, seed=seed)
-    camera = sample_camera(seed, image_size=image_size)
+    camera = sample_camera(seed, image_size=image_size, fov_deg=fov_deg)
     view = render_view(mesh, camera, seed=seed)
     policy = TouchPolicy(cone_deg=cone_deg, visible_only=True)
     tt = sample_touches(mesh, touches, seed, policy, camera=camera)
@@ -236,9 +238,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pad", type=int, default=64, help="sensor resolution, pad x pad particles (default: 64)")
     p.add_argument("--n-grid", type=int, default=128, help="simulation grid cells across the domain (default: 128)")
     p.add_argument("--cone", type=float, default=15.0, help="press-direction cone half-angle, degrees")
+    p.add_argument("--fov", type=float, default=35.0, help="camera field of view, degrees (default: 35)")
     p.add_argument("--device", default="cpu", help="torch device of the simulation")
     a = p.parse_args(argv)
-    path = make_preview(a.out, a.shape, a.touches, a.seed, a.image_size, a.pad, a.n_grid, a.cone, a.device)
+    path = make_preview(a.out, a.shape, a.touches, a.seed, a.image_size, a.pad, a.n_grid, a.cone, a.fov, a.device)
     print(f"wrote {path}")
     return 0
 
