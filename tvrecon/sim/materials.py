@@ -112,14 +112,19 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
     if tol is None:
         tol = 4.0 * torch.finfo(F.dtype).eps
     stop = (2.0 * tol) ** 0.5
-    X = F
+    idx = _COF_CACHE.get(F.device)
+    if idx is None:
+        idx = _COF_CACHE.setdefault(F.device, torch.tensor(_COF_IDX, device=F.device))
+    P = F.shape[0]
+    X = F.reshape(P, 9).T.contiguous()  # (9, P): entries as contiguous rows, so every op below is a flat vector op
     for _ in range(max_iter):
-        cof = cofactor3(X)
-        det = (X[:, 0] * cof[:, 0]).sum(-1)  # (P,)
-        inv_t = cof / det[:, None, None]  # X^-T
+        g4 = X.index_select(0, idx)  # (36, P): the four factor tables of the cofactors
+        cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, P) = det(X) X^-T
+        det = (X[0:3] * cof[0:3]).sum(0)  # (P,)
+        inv_t = cof / det  # X^-T
         # Frobenius scaling g = (|X^-1|_F / |X|_F)^(1/2), ~1 near convergence, keeps Newton quadratically convergent
-        g = (inv_t.square().sum((1, 2)) / X.square().sum((1, 2))).pow(0.25)[:, None, None]
-        X_new = 0.5 * (g * X + inv_t / g)
+        gs = (inv_t.square().sum(0) / X.square().sum(0)).pow(0.25)
+        X_new = 0.5 * (gs * X + inv_t / gs)
         delta = float((X_new - X).detach().abs().amax()) if X.numel() else 0.0
         X = X_new
         if not delta == delta or delta == float("inf"):
@@ -129,7 +134,7 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
             )
         if delta < stop:
             break
-    return X
+    return X.T.reshape(P, 3, 3)
 
 
 def fixed_corotated_energy(F: Tensor, mu: float | Tensor, lam: float | Tensor) -> Tensor:
