@@ -25,6 +25,7 @@ os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
 import hydra  # noqa: E402
 import lightning as L  # noqa: E402
+import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
@@ -105,6 +106,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             f"ckpt_path={ckpt_path} does not exist: pass the checkpoints/last.ckpt of an earlier run to resume, "
             f"or drop ckpt_path to start from scratch"
         )
+    if cfg.get("torch_threads"):
+        torch.set_num_threads(int(cfg.torch_threads))
     if cfg.get("seed") is not None:
         L.seed_everything(int(cfg.seed), workers=True)
     out_dir = Path(cfg.paths.output_dir)

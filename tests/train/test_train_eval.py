@@ -134,3 +134,31 @@ def test_resume_from_missing_checkpoint_is_a_clear_error(tmp_path: Path) -> None
     _synthetic(cfg, tmp_path)
     with pytest.raises(FileNotFoundError, match=r"ckpt_path=.*gone\.ckpt does not exist"):
         train(cfg)
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [["debug=fdr"], ["debug=overfit"], ["debug=limit"], ["trainer=gpu"], ["trainer=ddp", "trainer.devices=4"],
+     ["trainer=ddp_sim"], ["logger=csv"], ["logger=tensorboard"]],
+)  # fmt: skip
+def test_debug_trainer_logger_groups_compose(overrides: list[str], tmp_path: Path) -> None:
+    cfg = compose_config("train", ["experiment=smoke", *overrides], tmp_path)
+    if overrides[0].startswith("debug"):
+        assert cfg.task_name == "debug" and cfg.logger is None and cfg.callbacks is None
+        assert cfg.trainer.get("fast_dev_run", False) == (overrides[0] == "debug=fdr")
+    if overrides[0] == "trainer=ddp":
+        assert cfg.trainer.strategy == "ddp" and cfg.trainer.devices == 4 and cfg.trainer.sync_batchnorm
+    if overrides[0].startswith("logger="):
+        assert list(cfg.logger) == [overrides[0].split("=")[1]]
+
+
+def test_hparams_search_defines_a_basic_sweep(tmp_path: Path) -> None:
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONFIGS), version_base="1.3"):
+        cfg = compose("train", ["hparams_search=lr_wd"], return_hydra_config=True)
+    assert cfg.hydra.sweeper._target_.endswith("BasicSweeper")
+    assert set(cfg.hydra.sweeper.params) == {"model.optimizer.lr", "model.optimizer.weight_decay"}
+    assert cfg.optimized_metric == "val/chamfer"
