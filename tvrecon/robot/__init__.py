@@ -1,0 +1,22 @@
+"""Robot scenes with EIP tactile sensors (pybullet): a Panda pick-and-place demo and a reusable TactileFinger.
+
+Needs the optional ``robot`` extra (``pip install tvrecon[robot]`` for pybullet). Entry point::
+
+    python -m tvrecon.robot.pick_place object=can
+"""
+
+from tvrecon.robot.finger import FingerReading, PadConfig, TactileFinger
+from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
+from tvrecon.robot.scene import Scene, SceneConfig
+
+__all__ = [
+    "CameraConfig",
+    "FingerReading",
+    "GraspPlan",
+    "PadConfig",
+    "RGBDCamera",
+    "Scene",
+    "SceneConfig",
+    "TactileFinger",
+    "plan_top_grasp",
+]

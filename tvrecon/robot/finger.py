@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 import trimesh
 
-__all__ = ["PadConfig", "FingerReading", "TactileFinger", "to_pad_frame"]
+__all__ = ["PadConfig", "FingerReading", "LazySimulator", "TactileFinger", "sense_fingers", "to_pad_frame"]
 
 
 @dataclass
@@ -32,7 +32,7 @@ class PadConfig:
 
     resolution: (H, W) tactile pixels; pad_size: physical width of the contact layer in metres (2 cm default).
     n_grid: MPM grid cells across the press domain (the domain spans ``n_grid * dx`` metres, dx = pad cell size).
-    stiffness: N/m of the pad's elastic give (indentation = penetration + force / stiffness).
+    stiffness: N/m of the pad's elastic give (indentation = max(penetration, force / stiffness)).
     min_depth, max_depth: clamp of the indentation in metres.
     min_force: total normal force (N) below which the finger counts as not touching.
     move_tol: re-simulate when the contact point moves more than this on the object (metres).
@@ -46,9 +46,9 @@ class PadConfig:
     layers: int = 4
     E: float = 3.0
     nu: float = 0.25
-    stiffness: float = 2.0e4
+    stiffness: float = 2.5e4
     min_depth: float = 2.0e-4
-    max_depth: float = 2.0e-3
+    max_depth: float = 2.5e-3
     min_force: float = 0.05
     move_tol: float = 0.003
     depth_tol: float = 0.35
@@ -89,6 +89,36 @@ class FingerReading:
     body: int
     simulated: bool
     extra: dict = field(default_factory=dict)
+
+
+class LazySimulator:
+    """An EIP simulator for a :class:`PadConfig`, built on the first press (so a scene without contact never loads
+    the solver). Share one instance between fingers so their presses can be batched."""
+
+    def __init__(self, pad: PadConfig) -> None:
+        self.pad = pad
+        self._sim = None
+
+    @property
+    def sim(self) -> object:
+        """The ``tvrecon.sim.press.EIPSimulator`` (pad resolution, 0.5-cell spacing, domain sized from the pad)."""
+        if self._sim is None:
+            from tvrecon.sim.press import EIPSimulator, PressConfig
+            from tvrecon.sim.sensor import SensorConfig
+
+            pc = self.pad
+            sensor = SensorConfig(resolution=tuple(pc.resolution), layers=pc.layers, spacing=0.5, E=pc.E, nu=pc.nu)
+            press = PressConfig(n_grid=pc.n_grid, domain_size=pc.domain_size, max_steps=pc.max_steps)
+            self._sim = EIPSimulator(sensor=sensor, press=press)
+        return self._sim
+
+    def press(self, mesh: trimesh.Trimesh, position: object, direction: object, **overrides: object) -> object:
+        """``EIPSimulator.press``."""
+        return self.sim.press(mesh, position, direction, **overrides)
+
+    def press_batch(self, meshes: object, positions: object, directions: object, **overrides: object) -> list:
+        """``EIPSimulator.press_batch``."""
+        return self.sim.press_batch(meshes, positions, directions, **overrides)
 
 
 def to_pad_frame(image: torch.Tensor, direction: np.ndarray, up: np.ndarray) -> torch.Tensor:
@@ -142,6 +172,9 @@ class TactileFinger:
         link: link index of the finger (-1 = base).
         normal_axis: (3,) pad press direction in the link frame (the finger's closing direction).
         up_axis: (3,) pad "up" axis in the link frame (image rows), e.g. along the finger towards its tip.
+        pad_center: (3,) centre of the pad's contact face in the link frame; the press is then centred on the pad
+            (the contact plane point in front of it), so the image shows where on the pad the object touches.
+            None centres the press on the force-weighted contact point instead.
         pad: pad geometry and caching thresholds.
         simulator: a ``tvrecon.sim.press.EIPSimulator``; None builds one from ``pad``.
         client: pybullet physics client id.
@@ -154,6 +187,7 @@ class TactileFinger:
         link: int,
         normal_axis: Sequence[float],
         up_axis: Sequence[float] = (0.0, 0.0, 1.0),
+        pad_center: Sequence[float] | None = None,
         pad: PadConfig | None = None,
         simulator: object | None = None,
         client: int = 0,
@@ -170,32 +204,15 @@ class TactileFinger:
         if np.linalg.norm(u) < 1e-6:
             raise ValueError("up_axis must not be parallel to normal_axis")
         self.body, self.link, self.client, self.name = int(body), int(link), int(client), name
+        self.pad_center = None if pad_center is None else np.asarray(pad_center, dtype=np.float64)
+        if self.pad_center is not None and self.pad_center.shape != (3,):
+            raise ValueError(f"pad_center must be (3,) in the link frame, got {self.pad_center.shape}")
         self.normal_axis, self.up_axis = n, u / np.linalg.norm(u)
         self.pad = pad or PadConfig()
-        self._sim = simulator  # built lazily from ``pad`` on the first press
+        self.sim = simulator if simulator is not None else LazySimulator(self.pad)
         self.objects: dict[int, trimesh.Trimesh] = {}
         self._cache: dict | None = None
         self.num_presses = 0
-
-    @property
-    def sim(self) -> object:
-        """The EIP simulator used for presses (``tvrecon.sim.press.EIPSimulator``), built on first use."""
-        if self._sim is None:
-            self._sim = self._build_simulator()
-        return self._sim
-
-    @sim.setter
-    def sim(self, value: object) -> None:
-        self._sim = value
-
-    def _build_simulator(self) -> object:
-        from tvrecon.sim.press import EIPSimulator, PressConfig
-        from tvrecon.sim.sensor import SensorConfig
-
-        pc = self.pad
-        sensor = SensorConfig(resolution=tuple(pc.resolution), layers=pc.layers, spacing=0.5, E=pc.E, nu=pc.nu)
-        press = PressConfig(n_grid=pc.n_grid, domain_size=pc.domain_size, max_steps=pc.max_steps)
-        return EIPSimulator(sensor=sensor, press=press)
 
     # ------------------------------------------------------------------ registry
     def attach_object(self, body: int, mesh: trimesh.Trimesh) -> None:
@@ -209,17 +226,18 @@ class TactileFinger:
         self._cache = None
 
     # ------------------------------------------------------------------ geometry
-    def link_rotation(self) -> np.ndarray:
-        """(3,3) float64 world rotation of the finger link frame."""
+    def link_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """((3,) world position, (3,3) world rotation) float64 of the finger link frame."""
         if self.link < 0:
-            _, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
+            pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
         else:
-            orn = p.getLinkState(self.body, self.link, computeForwardKinematics=True, physicsClientId=self.client)[5]
-        return np.asarray(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
+            st = p.getLinkState(self.body, self.link, computeForwardKinematics=True, physicsClientId=self.client)
+            pos, orn = st[4], st[5]
+        return np.asarray(pos, dtype=np.float64), np.asarray(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
 
     def world_axes(self) -> tuple[np.ndarray, np.ndarray]:
         """((3,) press direction, (3,) up axis) of the pad in world coordinates."""
-        R = self.link_rotation()
+        _, R = self.link_pose()
         return R @ self.normal_axis, R @ self.up_axis
 
     def _body_pose(self, body: int) -> np.ndarray:
@@ -247,24 +265,20 @@ class TactileFinger:
         Returns:
             A :class:`FingerReading` (image (3,H,W) float32 in the pad frame; zeros and contact False at rest).
         """
+        return sense_fingers([self], refresh=refresh)[0]
+
+    def _measure(self, refresh: bool) -> tuple[FingerReading, dict | None]:
+        """Contact geometry from pybullet; returns the reading (image from the cache) and the press to run, if any."""
         H, W = self.pad.resolution
         d_world, up_world = self.world_axes()
         pts = self.contacts()
         force = float(sum(c[9] for c in pts))
         if not pts or force < self.pad.min_force:
-            self._cache = None
+            self._cache = None  # the pad is back at rest
+            rest = np.zeros((3, H, W), np.float32)
             return FingerReading(
-                np.zeros((3, H, W), np.float32),
-                False,
-                force,
-                np.zeros(3),
-                np.full(3, np.nan),
-                d_world,
-                0.0,
-                0.0,
-                -1,
-                False,
-            )
+                rest, False, force, np.zeros(3), np.full(3, np.nan), d_world, 0.0, 0.0, -1, False
+            ), None
         per_body: dict[int, float] = {}
         for c in pts:
             per_body[c[2]] = per_body.get(c[2], 0.0) + c[9]
@@ -274,39 +288,82 @@ class TactileFinger:
         pos_b = np.array([c[6] for c in pts])  # (N,3) points on the object
         normals = np.array([c[7] for c in pts])  # contact normal on B (object -> finger)
         position = (w[:, None] * pos_b).sum(0) / w.sum()
+        if self.pad_center is not None:  # the contact plane's point in front of the pad centre
+            link_pos, R = self.link_pose()
+            centre = link_pos + R @ self.pad_center
+            position = centre + d_world * float((position - centre) @ d_world)
         force_vec = (w[:, None] * normals).sum(0)  # object pushes the finger along +normalOnB
         penetration = float(max(0.0, -min(c[8] for c in pts)))
-        depth = float(np.clip(penetration + force / self.pad.stiffness, self.pad.min_depth, self.pad.max_depth))
+        # the pad's indentation: its elastic give under the measured force, at least the geometric overlap,
+        # rounded to 0.05 mm so that presses of equal depth can share one batched solver call
+        depth = float(np.clip(max(penetration, force / self.pad.stiffness), self.pad.min_depth, self.pad.max_depth))
+        depth = round(depth / 5e-5) * 5e-5
         T = self._body_pose(body)
-        local = np.linalg.inv(T) @ np.append(position, 1.0)
+        local = (np.linalg.inv(T) @ np.append(position, 1.0))[:3]
         c = self._cache
         need = (
             refresh
             or c is None
             or c["body"] != body
-            or np.linalg.norm(local[:3] - c["local"]) > self.pad.move_tol
+            or np.linalg.norm(local - c["local"]) > self.pad.move_tol
             or abs(depth - c["depth"]) > self.pad.depth_tol * c["depth"]
         )
+        image = None if need else c["image"]
+        reading = FingerReading(image, True, force, force_vec, position, d_world, penetration, depth, body, need)
+        job = None
         if need:
-            image = self._press(body, T, position, d_world, up_world, depth)
-            self._cache = {"body": body, "local": local[:3], "depth": depth, "image": image}
-        return FingerReading(
-            self._cache["image"], True, force, force_vec, position, d_world, penetration, depth, body, bool(need)
-        )
+            mesh = self.objects[body].copy().apply_transform(T)
+            job = {
+                "mesh": mesh,
+                "position": position,
+                "direction": d_world,
+                "up": up_world,
+                "depth": depth,
+                "body": body,
+                "local": local,
+            }
+        return reading, job
 
-    def _press(
-        self, body: int, T: np.ndarray, position: np.ndarray, direction: np.ndarray, up: np.ndarray, depth: float
-    ) -> np.ndarray:
-        mesh_world = self.objects[body].copy().apply_transform(T)
-        reading = self.sim.press(
-            mesh_world,
-            torch.as_tensor(position, dtype=torch.float32),
-            torch.as_tensor(direction, dtype=torch.float32),
-            depth=depth / self.pad.dx,
+    def _store(self, reading: FingerReading, job: dict, image: np.ndarray) -> None:
+        self._cache = {"body": job["body"], "local": job["local"], "depth": job["depth"], "image": image}
+        reading.image = image
+        self.num_presses += 1
+
+
+def sense_fingers(fingers: Sequence[TactileFinger], refresh: bool = False) -> list[FingerReading]:
+    """Read several fingers at the current step, running the needed EIP presses as batched solver calls.
+
+    Fingers sharing one simulator whose presses have the same depth go through one ``press_batch`` call (one grid
+    block per touch), so a two-finger grasp costs one solver loop instead of two.
+
+    Args:
+        fingers: the fingers to read.
+        refresh: force new presses for every finger in contact (e.g. at the start of a control phase).
+
+    Returns:
+        One :class:`FingerReading` per finger, in order.
+    """
+    measured = [f._measure(refresh) for f in fingers]
+    groups: dict[tuple[int, float], list[int]] = {}
+    for i, (_, job) in enumerate(measured):
+        if job is not None:
+            groups.setdefault((id(fingers[i].sim), job["depth"]), []).append(i)
+    for (_, depth), idx in groups.items():
+        sim = fingers[idx[0]].sim
+        pad = fingers[idx[0]].pad
+        jobs = [measured[i][1] for i in idx]
+        readings = sim.press_batch(
+            [j["mesh"] for j in jobs],
+            torch.as_tensor(np.stack([j["position"] for j in jobs]), dtype=torch.float32),
+            torch.as_tensor(np.stack([j["direction"] for j in jobs]), dtype=torch.float32),
+            depth=depth / pad.dx,
             threshold=None,
         )
-        self.num_presses += 1
-        if not reading.contact:
-            return np.zeros((3, *self.pad.resolution), np.float32)
-        img = to_pad_frame(reading.image.detach().float().cpu(), direction, up)
-        return img.numpy().astype(np.float32)
+        for i, job, r in zip(idx, jobs, readings):
+            f = fingers[i]
+            if r.contact:
+                img = to_pad_frame(r.image.detach().float().cpu(), job["direction"], job["up"]).numpy()
+            else:
+                img = np.zeros((3, *f.pad.resolution), np.float32)
+            f._store(measured[i][0], job, img.astype(np.float32))
+    return [m[0] for m in measured]

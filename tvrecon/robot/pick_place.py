@@ -21,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import pybullet as p
+import torch
 import trimesh
 from tqdm.auto import tqdm
 
-from tvrecon.robot.finger import FingerReading, PadConfig, TactileFinger
+from tvrecon.robot.finger import FingerReading, LazySimulator, PadConfig, TactileFinger, sense_fingers
 from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
 from tvrecon.robot.scene import (
     PANDA_ARM_JOINTS,
@@ -45,6 +46,7 @@ _LOWER = [-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671, 0.0, 0.
 _UPPER = [2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671, 0.04, 0.04]
 _RANGES = [u - lo for u, lo in zip(_UPPER, _LOWER)]
 _REST = list(PANDA_REST) + [0.02, 0.02]
+PANDA_PAD_CENTER = (0.0, 0.0, 0.044)  # centre of the flat inner face of panda's finger collision mesh (link frame)
 
 
 @dataclass
@@ -72,12 +74,13 @@ class PickPlaceConfig:
     contact_force: float = 6.0
     render: bool = True
     render_size: tuple[int, int] = (256, 192)
-    render_eye: tuple[float, float, float] = (0.95, -0.42, 0.98)
-    render_target: tuple[float, float, float] = (0.5, 0.0, 0.73)
+    render_eye: tuple[float, float, float] = (0.98, 0.0, 0.86)
+    render_target: tuple[float, float, float] = (0.47, 0.0, 0.69)
     out_dir: str = "outputs/robot"
     write_gif: bool = True
     write_strip: bool = True
     progress: bool = True
+    torch_threads: int | None = 1  # small EIP presses run fastest single-threaded; None keeps torch's setting
     scene: SceneConfig = field(default_factory=SceneConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     pad: PadConfig = field(default_factory=PadConfig)
@@ -221,7 +224,7 @@ class _Controller:
         return np.asarray(img, dtype=np.uint8).reshape(H, W, 4)[..., :3].copy()
 
     def record(self) -> None:
-        readings: list[FingerReading] = [f.sense(refresh=self.phase_fresh) for f in self.fingers]
+        readings: list[FingerReading] = sense_fingers(self.fingers, refresh=self.phase_fresh)
         self.phase_fresh = False
         obj_pos, obj_orn = self.scene.object_pose()
         ee_pos, ee_orn = self.scene.link_pose(PANDA_GRASP_LINK)
@@ -305,10 +308,21 @@ def run_pick_place(cfg: PickPlaceConfig | None = None, simulator: object | None 
     """
     cfg = cfg or PickPlaceConfig()
     t0 = time.perf_counter()
+    threads = torch.get_num_threads()
+    if cfg.torch_threads is not None:
+        torch.set_num_threads(int(cfg.torch_threads))
+    try:
+        return _run(cfg, simulator, t0)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run(cfg: PickPlaceConfig, simulator: object | None, t0: float) -> PickPlaceResult:
     mesh = cfg.mesh if cfg.mesh is not None else load_object_mesh(cfg.object, cfg.seed)
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scene = Scene(mesh, cfg.scene)
+    simulator = simulator if simulator is not None else LazySimulator(cfg.pad)  # one solver for both pads
     try:
         fingers = (
             TactileFinger(
@@ -316,6 +330,7 @@ def run_pick_place(cfg: PickPlaceConfig | None = None, simulator: object | None 
                 PANDA_FINGER_LINKS[0],
                 normal_axis=(0, -1, 0),
                 up_axis=(0, 0, 1),
+                pad_center=PANDA_PAD_CENTER,
                 pad=cfg.pad,
                 simulator=simulator,
                 client=scene.client,
@@ -326,6 +341,7 @@ def run_pick_place(cfg: PickPlaceConfig | None = None, simulator: object | None 
                 PANDA_FINGER_LINKS[1],
                 normal_axis=(0, 1, 0),
                 up_axis=(0, 0, 1),
+                pad_center=PANDA_PAD_CENTER,
                 pad=cfg.pad,
                 simulator=simulator,
                 client=scene.client,
