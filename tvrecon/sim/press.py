@@ -240,6 +240,8 @@ class EIPSimulator:
             raise ValueError(f"unknown press option(s) {bad}; valid: {sorted(s_names | p_names)}")
         s = dataclasses.replace(self.sensor, **{k: v for k, v in overrides.items() if k in s_names})
         p = dataclasses.replace(self.cfg, **{k: v for k, v in overrides.items() if k in p_names})
+        if p.depth is not None and float(p.depth) + 0.5 > float(p.max_depth):
+            p = dataclasses.replace(p, max_depth=float(p.depth) + 0.5)  # a requested depth extends the travel limit
         return s, p
 
     @staticmethod
