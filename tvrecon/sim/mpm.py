@@ -156,6 +156,13 @@ class ParticleState:
         return 1 if self.batch is None else int(self.batch.max()) + 1
 
 
+def _shift(t: Tensor, s: int) -> Tensor:
+    """Shift along the last (node) axis: out[..., n] = t[..., n - s], zero filled (s < 0 shifts the other way)."""
+    if s == 0:
+        return t
+    return torch.nn.functional.pad(t, (s, -s))
+
+
 def _offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
     """(27, 3) node offsets (i, j, k) in {0,1,2}^3, i slowest."""
     r = torch.arange(3, device=device)
@@ -194,7 +201,6 @@ class MLSMPM:
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
-        self._shift_cache: dict[tuple[int, int, torch.device], Tensor] = {}
 
     # ------------------------------------------------------------------ helpers
     def _constants(self, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
@@ -300,7 +306,6 @@ class MLSMPM:
         wx, wy, wz = (torch.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], 1) for f in fx.T)
         w = ((wx[:, :, None] * wy[:, None, :]).reshape(P, 9, 1) * wz[:, None, :]).reshape(P, 27)  # o = (i, j, k)
         n_nodes = B * D[0] * D[1] * D[2]
-        offs = [(i * D[1] + j) * D[2] + k for i in range(3) for j in range(3) for k in range(3)]  # linear offsets
 
         # ---- stress (eq. 4) and the affine momentum matrix A = m C - (4 dt V0 / dx^2) P F^T (eq. 6)
         R = polar_decomposition(F)
@@ -319,12 +324,13 @@ class MLSMPM:
         contrib = torch.matmul(M.reshape(P * 4, 4), o_aug_t.T).view(P, 4, 27) * w[:, None, :]  # (P, 4, 27)
 
         # ---- P2G (eq. 5-6): ONE scatter of each particle's whole 4 x 27 stencil onto its base node (P rows of 108),
-        # then the 27 stencil offsets are summed with shifted slice adds on the small grid.
+        # then the 27 stencil offsets are summed by shifting along the node axis, k then j then i (9 shifts).
+        S0, S1 = D[1] * D[2], D[2]
         G = torch.zeros(n_nodes, 108, dtype=dtype, device=device).index_add(0, lin, contrib.reshape(P, 108))
-        G = G.view(n_nodes, 4, 27)
-        grid = G[:, :, 0].T.contiguous()  # (4, N): offset 0
-        for o in range(1, 27):
-            grid = grid.index_add(1, self._shift_index(offs[o], n_nodes, device), G[: n_nodes - offs[o], :, o].T)
+        Gt = G.T.reshape(4, 3, 3, 3, n_nodes)  # (c, i, j, k, node)
+        T = Gt[:, :, :, 0] + _shift(Gt[:, :, :, 1], 1) + _shift(Gt[:, :, :, 2], 2)  # (4, 3, 3, N)
+        U = T[:, :, 0] + _shift(T[:, :, 1], S1) + _shift(T[:, :, 2], 2 * S1)  # (4, 3, N)
+        grid = U[:, 0] + _shift(U[:, 1], S0) + _shift(U[:, 2], 2 * S0)  # (4, N): mass, momentum
         gm = grid[0]
         has_mass = gm > 0
         gv = (grid[1:] / torch.where(has_mass, gm, torch.ones_like(gm))).T  # (N, 3), eq. 7 (zero where m = 0)
@@ -341,10 +347,12 @@ class MLSMPM:
                 f"{_FIX_HINT}"
             )
 
-        # ---- G2P (eq. 11-14): table H[n, c, o] = v_c(n + offset_o), one row gather per particle
-        gv_t = torch.cat([gv.T, gv.new_zeros(3, offs[-1])], 1)  # (3, N + max offset)
-        H = torch.stack([gv_t[:, off : off + n_nodes] for off in offs], 2).transpose(0, 1)  # (N, 3, 27)
-        vg = H.reshape(n_nodes, 81).index_select(0, lin).view(P, 3, 27) * w[:, None, :]  # (P, 3, 27)
+        # ---- G2P (eq. 11-14): table H[node, c, o] = v_c(node + offset_o) built by 9 shifts, one row gather per particle
+        gvc = gv.T  # (3, N)
+        K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
+        K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
+        H = torch.stack([K2, _shift(K2, -S0), _shift(K2, -2 * S0)], 1)  # (3, i, j, k, N)
+        vg = H.reshape(81, n_nodes).T.contiguous().index_select(0, lin).view(P, 3, 27) * w[:, None, :]  # (P, 3, 27)
         S = torch.matmul(vg.reshape(P * 3, 27), o_aug_t).view(P, 3, 4)  # [sum w v_i, sum w v_i o^T]
         v_pic = S[:, :, 0]
         C_new = (4.0 * inv_dx) * (S[:, :, 1:] - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
@@ -356,16 +364,6 @@ class MLSMPM:
         x_new = x + dt * v_new  # eq. 13
         F_new = F + dt * torch.matmul(C_new, F)  # eq. 14: (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
-
-    def _shift_index(self, off: int, n_nodes: int, device: torch.device) -> Tensor:
-        """(N - off,) int64 indices off .. N - 1 (cached)."""
-        key = (off, n_nodes, device)
-        idx = self._shift_cache.get(key)
-        if idx is None:
-            if len(self._shift_cache) > 256:
-                self._shift_cache.clear()
-            idx = self._shift_cache[key] = torch.arange(off, n_nodes, device=device)
-        return idx
 
     def _apply_colliders(
         self,
