@@ -347,7 +347,7 @@ class MLSMPM:
                 f"{_FIX_HINT}"
             )
 
-        # ---- G2P (eq. 11-14): table H[node, c, o] = v_c(node + offset_o) built by 9 shifts, one row gather per particle
+        # ---- G2P (eq. 11-14): table H[node, c, o] = v_c(node + offset_o) from 9 shifts; one row gather per particle
         gvc = gv.T  # (3, N)
         K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
         K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
