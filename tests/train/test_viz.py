@@ -1,0 +1,47 @@
+"""Figures: loss curves from a CSV log, mesh renders and .obj export."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from tvrecon.viz import export_obj, plot_loss_curves, read_metrics_csv, render_mesh_comparison
+
+
+def test_loss_curves_from_lightning_csv(tmp_path: Path) -> None:
+    csv = tmp_path / "metrics.csv"
+    csv.write_text(
+        "epoch,lr-AdamW,step,train/loss,train/chamfer,val/loss,val/chamfer\n"
+        "0,,0,1.0,0.5,,\n0,,1,0.8,0.4,,\n0,,1,,,0.9,30.0\n0,0.001,1,,,,\n1,,2,0.5,0.2,,\n1,,3,0.4,0.1,0.6,20.0\n"
+    )
+    series = read_metrics_csv(csv)
+    assert series["train/loss"] == [(0.0, 1.0), (1.0, 0.8), (2.0, 0.5), (3.0, 0.4)]
+    assert series["val/chamfer"] == [(1.0, 30.0), (3.0, 20.0)]
+    out = plot_loss_curves(csv, tmp_path / "curves.png")
+    assert out.is_file() and out.stat().st_size > 1000
+    with pytest.raises(ValueError, match="does not exist"):
+        plot_loss_curves(tmp_path / "missing.csv", tmp_path / "x.png")
+    (tmp_path / "empty.csv").write_text("epoch,step\n0,0\n")
+    with pytest.raises(ValueError, match="no train/\\* or val/\\* values"):
+        plot_loss_curves(tmp_path / "empty.csv", tmp_path / "x.png")
+
+
+def test_render_and_export_roundtrip(tmp_path: Path) -> None:
+    box = trimesh.creation.box((0.4, 0.3, 0.2))
+    verts = torch.tensor(box.vertices, dtype=torch.float32) + torch.tensor([0.0, 0.0, 2.0])
+    faces = torch.tensor(box.faces, dtype=torch.int64)
+    png = render_mesh_comparison(verts, faces, verts[:5], tmp_path / "r" / "cmp.png", "box", torch.rand(3, 16, 16))
+    assert png.is_file() and not list(png.parent.glob(".*"))
+    obj = export_obj(verts, faces, tmp_path / "m" / "box.obj")
+    back = trimesh.load(obj, process=False)
+    assert np.allclose(back.vertices, verts.numpy(), atol=1e-6) and np.array_equal(back.faces, faces.numpy())
+    with pytest.raises(ValueError, match=r"pred_faces index outside"):
+        render_mesh_comparison(verts, faces + 100, verts, tmp_path / "bad.png")
+    with pytest.raises(ValueError, match=r"gt_points must have shape \(N, 3\)"):
+        render_mesh_comparison(verts, faces, verts[:, :2], tmp_path / "bad.png")
+    with pytest.raises(ValueError, match=r"\.obj"):
+        export_obj(verts, faces, tmp_path / "box.ply")
