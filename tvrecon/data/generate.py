@@ -23,7 +23,9 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -195,12 +197,24 @@ def _parse(argv: Sequence[str]) -> tuple[dict[str, str], list[str]]:
 
 def main(argv: Sequence[str] | None = None) -> list[GenerateStats]:
     """CLI entry point; returns the stats of every split generated."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    opts, overrides = _parse(sys.argv[1:] if argv is None else argv)
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if in_main else None
+    if in_main:  # SIGTERM -> SystemExit, so the pool's context manager stops its workers
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
+    try:
+        return _run(opts, overrides)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
     from hydra.utils import instantiate
 
     from tvrecon.data.presets import compose_preset
 
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    opts, overrides = _parse(sys.argv[1:] if argv is None else argv)
     cfg = compose_preset(opts.get("preset", "small"), overrides)
     dm = instantiate(cfg, _convert_="all")
     shard = parse_shard(opts.get("shard", "0/1"))

@@ -12,7 +12,8 @@ Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
   64 x 64 sensor pad on a 128^3 grid.
 - ``small``: a CPU-sized version (10 reconstruction classes, lower sensor and image resolution) that generates in
   about 10 to 20 minutes and trains in about an hour on 2 cores.
-- ``tiny``: a few objects of 3 classes with a 12 x 12 pad and 64 px views, for tests and the smoke experiment.
+- ``tiny``: a few objects of 3 classes with a 16 x 16 pad on a 64^3 grid and 64 px views, for tests and the smoke
+  experiment.
 """
 
 from __future__ import annotations
