@@ -86,6 +86,22 @@ def test_batched_equals_sequential(sim: EIPSimulator) -> None:
         assert batch[t].frames is not None and batch[t].frames.shape[1:] == (3, 10, 10)
 
 
+def test_batched_release_equals_sequential() -> None:
+    """Touches that stop pressing at different steps go through their own release inside one batch."""
+    sim = EIPSimulator(
+        SensorConfig(resolution=(6, 6), layers=4), PressConfig(n_grid=32, speed_fraction=0.3, max_depth=1.5)
+    )
+    box = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
+    kw = dict(release_steps=12, record_every=4)
+    batch = sim.press_batch([SPHERE, box], [TOP, [0.0, 0.0, 0.3]], [DOWN, DOWN], force=0.002, **kw)
+    assert batch[0].steps != batch[1].steps
+    for r, (m, p) in zip(batch, [(SPHERE, TOP), (box, [0.0, 0.0, 0.3])]):
+        one = sim.press(m, p, DOWN, force=0.002, **kw)
+        assert r.steps == one.steps and r.frame_steps == one.frame_steps
+        torch.testing.assert_close(r.residual, one.residual, atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(r.particles, one.particles, atol=1e-5, rtol=1e-5)
+
+
 def test_touches_stop_at_their_own_condition(sim: EIPSimulator) -> None:
     box = trimesh.creation.box(extents=(0.8, 0.8, 0.8))
     mixed = sim.press_batch([SPHERE, box], [TOP, [0, 0, 0.4]], [DOWN, DOWN], threshold=0.08)

@@ -88,6 +88,9 @@ def to_sensor_cells(points: torch.Tensor, reading: TactileReading, press: PressC
 
 
 def run_press(args: argparse.Namespace) -> dict[str, Path]:
+    """Run one press from parsed CLI arguments and write its files; returns {name: path}."""
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
     mesh = load_shape(args.shape, seed=args.seed)
     direction = np.asarray(args.direction, dtype=np.float64)
     if not np.isfinite(direction).all() or np.linalg.norm(direction) < 1e-8:
@@ -171,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=5, help="frames in deformation.png")
     p.add_argument("--ply", type=int, default=3, help="pad .ply files to write (last frames)")
     p.add_argument("--surface", action="store_true", help="also write a marching-cubes mesh of the pad")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
     return parser
 
 
