@@ -162,3 +162,19 @@ def test_hparams_search_defines_a_basic_sweep(tmp_path: Path) -> None:
     assert cfg.hydra.sweeper._target_.endswith("BasicSweeper")
     assert set(cfg.hydra.sweeper.params) == {"model.optimizer.lr", "model.optimizer.weight_decay"}
     assert cfg.optimized_metric == "val/chamfer"
+
+
+def test_classify_experiment_trains_and_prints_table2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from train import train
+
+    overrides = ["experiment=classify", "+trainer.fast_dev_run=true", "model.num_touches=2", "model.net.num_classes=3"]
+    cfg = compose_config("train", overrides, tmp_path)
+    with open_dict(cfg):
+        cfg.data = OmegaConf.create(
+            {"_target_": "synthetic.SyntheticClassificationDataModule", "num_touches": 2, "batch_size": 3}
+        )
+    out = train(cfg)
+    assert out["result"]["task"] == "classification" and set(out["result"]["accuracy"]) == {"2"}
+    printed = capsys.readouterr().out
+    assert "Table 2" in printed and "2-touch" in printed
+    assert (tmp_path / "tables" / "table2.csv").read_text().splitlines()[0].startswith("1-touch,2-touch")
