@@ -15,13 +15,18 @@ TOP = [0.0, 0.0, 0.3]
 DOWN = [0.0, 0.0, -1.0]
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # tiny tensors: threading only adds overhead on the shared CI cores
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="module")
 def sim() -> EIPSimulator:
     """A small, fast scene: 10x10x5 pad, 40 cells across the unit domain, hand at 0.25 of the wave speed."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # tiny tensors: threading only adds overhead on the shared CI cores
-    yield EIPSimulator(SensorConfig(resolution=(10, 10), layers=5), PressConfig(n_grid=40, speed_fraction=0.25))
-    torch.set_num_threads(threads)
+    return EIPSimulator(SensorConfig(resolution=(10, 10), layers=5), PressConfig(n_grid=40, speed_fraction=0.25))
 
 
 def test_image_zero_before_contact(sim: EIPSimulator) -> None:
