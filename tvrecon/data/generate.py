@@ -159,6 +159,8 @@ def pregenerate(
                 for _ in pool.imap_unordered(_work, todo, chunksize=1):
                     stats.generated += 1
                     bar.update(per_item)
+                pool.close()  # clean shutdown (the context manager alone terminates the workers)
+                pool.join()
     finally:
         bar.close()
         stats.seconds = time.perf_counter() - start
