@@ -89,7 +89,7 @@ class PressConfig:
             raise ValueError(f"PressConfig.gap must be >= 0 cells, got {self.gap}")
         for name in ("speed", "threshold", "depth", "force", "dt"):
             val = getattr(self, name)
-            if val is not None and not float(val) > 0:
+            if val is not None and not _scalar(val) > 0:
                 raise ValueError(f"PressConfig.{name} must be > 0 or None, got {val}")
         if not (0 < float(self.speed_fraction) < 1):
             raise ValueError(f"PressConfig.speed_fraction must be in (0, 1), got {self.speed_fraction}")
@@ -387,7 +387,7 @@ class EIPSimulator:
         dt = float(mcfg.dt)
         speed = p.speed if p.speed is not None else float(p.speed_fraction) * self.wave_speed(s)
         speed_t = torch.as_tensor(speed, dtype=torch.float32, device=dev)
-        step_cells = float(speed) * dt / dx
+        step_cells = _scalar(speed) * dt / dx
         max_steps = (
             p.max_steps if p.max_steps is not None else math.ceil((float(p.gap) + float(p.max_depth)) / step_cells)
         )
