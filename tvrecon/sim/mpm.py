@@ -303,8 +303,10 @@ class MLSMPM:
         base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
         lo, lin, D = self._layout(base_f, state.batch, B)
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
-        wx, wy, wz = (torch.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], 1) for f in fx.T)
-        w = ((wx[:, :, None] * wy[:, None, :]).reshape(P, 9, 1) * wz[:, None, :]).reshape(P, 27)  # o = (i, j, k)
+        # channel-first layouts (..., P) below: every big elementwise op runs over contiguous particle rows
+        fxt = fx.T.contiguous()  # (3, P)
+        wa = torch.stack([0.5 * (1.5 - fxt) ** 2, 0.75 - (fxt - 1.0) ** 2, 0.5 * (fxt - 0.5) ** 2], 1)  # (axis, k, P)
+        w = (wa[0][:, None, None] * wa[1][None, :, None] * wa[2][None, None, :]).reshape(27, P)  # o = (i, j, k)
         n_nodes = B * D[0] * D[1] * D[2]
 
         # ---- stress (eq. 4) and the affine momentum matrix A = m C - (4 dt V0 / dx^2) P F^T (eq. 6)
@@ -314,20 +316,20 @@ class MLSMPM:
         A = m[:, None, None] * C - ((4.0 * dt * inv_dx * inv_dx) * state.volume)[:, None, None] * tau
         # per node: w * (m v + A (x_i - x_p)) with x_i - x_p = (o - fx) dx  ->  w * (M [1, o]) with M (P, 4, 4)
         mv0 = m[:, None] * v - dx * torch.matmul(A, fx[:, :, None])[:, :, 0]  # (P, 3)
-        M = torch.cat(
+        MT = torch.cat(
             [
-                torch.cat([m[:, None, None], torch.zeros_like(mv0)[:, None, :]], 2),  # (P, 1, 4)
-                torch.cat([mv0[:, :, None], dx * A], 2),  # (P, 3, 4)
+                torch.cat([m[None], torch.zeros_like(mv0.T)], 0)[None],  # (1, 4, P)
+                torch.cat([mv0.T[:, None, :], dx * A.permute(1, 2, 0)], 1),  # (3, 4, P)
             ],
-            1,
-        )  # (P, 4, 4)
-        contrib = torch.matmul(M.reshape(P * 4, 4), o_aug_t.T).view(P, 4, 27) * w[:, None, :]  # (P, 4, 27)
+            0,
+        )  # (4, 4, P): M[c, j] with [1, o] weights j
+        contrib = torch.matmul(o_aug_t, MT) * w  # (4, 27, P): (m, m v) per stencil node
 
-        # ---- P2G (eq. 5-6): ONE scatter of each particle's whole 4 x 27 stencil onto its base node (P rows of 108),
-        # then the 27 stencil offsets are summed by shifting along the node axis, k then j then i (9 shifts).
+        # ---- P2G (eq. 5-6): ONE scatter of each particle's whole 4 x 27 stencil onto its base node (P columns of
+        # 108), then the 27 stencil offsets are summed by shifting along the node axis, k then j then i (9 shifts).
         S0, S1 = D[1] * D[2], D[2]
-        G = torch.zeros(n_nodes, 108, dtype=dtype, device=device).index_add(0, lin, contrib.reshape(P, 108))
-        Gt = G.T.reshape(4, 3, 3, 3, n_nodes)  # (c, i, j, k, node)
+        G = torch.zeros(108, n_nodes, dtype=dtype, device=device).index_add(1, lin, contrib.reshape(108, P))
+        Gt = G.view(4, 3, 3, 3, n_nodes)  # (c, i, j, k, node)
         T = Gt[:, :, :, 0] + _shift(Gt[:, :, :, 1], 1) + _shift(Gt[:, :, :, 2], 2)  # (4, 3, 3, N)
         U = T[:, :, 0] + _shift(T[:, :, 1], S1) + _shift(T[:, :, 2], 2 * S1)  # (4, 3, N)
         grid = U[:, 0] + _shift(U[:, 1], S0) + _shift(U[:, 2], 2 * S0)  # (4, N): mass, momentum
@@ -352,10 +354,10 @@ class MLSMPM:
         K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
         K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
         H = torch.stack([K2, _shift(K2, -S0), _shift(K2, -2 * S0)], 1)  # (3, i, j, k, N)
-        vg = H.reshape(81, n_nodes).T.contiguous().index_select(0, lin).view(P, 3, 27) * w[:, None, :]  # (P, 3, 27)
-        S = torch.matmul(vg.reshape(P * 3, 27), o_aug_t).view(P, 3, 4)  # [sum w v_i, sum w v_i o^T]
-        v_pic = S[:, :, 0]
-        C_new = (4.0 * inv_dx) * (S[:, :, 1:] - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
+        vg = H.reshape(81, n_nodes).index_select(1, lin).view(3, 27, P) * w  # (3, 27, P)
+        S = torch.matmul(o_aug_t.T, vg)  # (3, 4, P): [sum w v_i, sum w v_i o^T]
+        v_pic = S[:, 0].T  # (P, 3)
+        C_new = (4.0 * inv_dx) * (S[:, 1:].permute(2, 0, 1) - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
         if alpha is None:  # alpha = 1 everywhere: the hand velocity has no weight
             v_new = v_pic
         else:
