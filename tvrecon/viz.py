@@ -204,10 +204,11 @@ def plot_loss_curves(metrics_csv: str | Path, path: str | Path, keys: Sequence[s
     keys = [k for k in keys if k in series and series[k]]
     if not keys:
         raise ValueError(f"no train/* or val/* values found in {metrics_csv}; columns: {sorted(series)}")
-    # group train/x and val/x into one panel named x
+    # one panel per column, except train/loss and val/loss (same quantity) which share one; val/chamfer is the
+    # x1e-3 metric, not the training chamfer loss, so it gets its own panel
     groups: dict[str, list[str]] = {}
     for k in keys:
-        groups.setdefault(k.split("/", 1)[-1].replace("_epoch", "").replace("_step", ""), []).append(k)
+        groups.setdefault("loss" if k.split("/", 1)[-1] == "loss" else k, []).append(k)
     n = len(groups)
     ncols = min(4, n)
     nrows = math.ceil(n / ncols)
