@@ -111,9 +111,11 @@ def test_hand_velocity_and_alpha():
     assert torch.allclose(state.x, state2.x)
 
 
-def run_press(n_steps, dtype=torch.float32, friction=0.0):
+def run_press(n_steps, dtype=torch.float32, friction=0.0, chunk_size=None):
     x, alpha, vol, col, hand = press_scene(dtype=dtype)
     solver = MLSMPM(MPMConfig(n_grid=32, friction=friction))
+    if chunk_size is not None:
+        solver.chunk_size = chunk_size
     state = ParticleState.create(x, None, volume=vol)
     for _ in range(n_steps):
         state = solver.step(state, collider=col, hand_velocity=hand, alpha=alpha)
@@ -125,7 +127,7 @@ def test_press_pushes_back_and_matches_reference():
     from reference_mpm import ReferenceMPM
 
     n = 32
-    state, solver = run_press(n)
+    state, solver = run_press(n, chunk_size=100)  # exercises the cache-blocked path (P = 256 particles)
     assert solver.last_force[0, 2] > 0  # the sphere pushes the pad up
     x, alpha, vol, col, hand = press_scene()
     P = len(x)

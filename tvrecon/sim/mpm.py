@@ -200,6 +200,7 @@ class MLSMPM:
                 raise ValueError(f"dt must be > 0, got {cfg.dt}")
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
+        self.chunk_size = 4096  # particles per cache-sized block of the stencil passes (no-grad path); 0 = off
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
 
     # ------------------------------------------------------------------ helpers
@@ -323,12 +324,20 @@ class MLSMPM:
             ],
             0,
         )  # (4, 4, P): M[c, j] with [1, o] weights j
-        contrib = torch.matmul(o_aug_t, MT) * w  # (4, 27, P): (m, m v) per stencil node
 
         # ---- P2G (eq. 5-6): ONE scatter of each particle's whole 4 x 27 stencil onto its base node (P columns of
         # 108), then the 27 stencil offsets are summed by shifting along the node axis, k then j then i (9 shifts).
         S0, S1 = D[1] * D[2], D[2]
-        G = torch.zeros(108, n_nodes, dtype=dtype, device=device).index_add(1, lin, contrib.reshape(108, P))
+        chunk = self._chunk(P)
+        if chunk >= P:
+            contrib = torch.matmul(o_aug_t, MT) * w  # (4, 27, P): (m, m v) per stencil node
+            G = torch.zeros(108, n_nodes, dtype=dtype, device=device).index_add(1, lin, contrib.reshape(108, P))
+        else:  # no autograd: the same sums in particle chunks that stay in cache
+            G = torch.zeros(108, n_nodes, dtype=dtype, device=device)
+            for s0 in range(0, P, chunk):
+                sl = slice(s0, s0 + chunk)
+                contrib = torch.matmul(o_aug_t, MT[:, :, sl]).mul_(w[:, sl])
+                G.index_add_(1, lin[sl], contrib.view(108, -1))
         Gt = G.view(4, 3, 3, 3, n_nodes)  # (c, i, j, k, node)
         T = Gt[:, :, :, 0] + _shift(Gt[:, :, :, 1], 1) + _shift(Gt[:, :, :, 2], 2)  # (4, 3, 3, N)
         U = T[:, :, 0] + _shift(T[:, :, 1], S1) + _shift(T[:, :, 2], 2 * S1)  # (4, 3, N)
@@ -354,8 +363,16 @@ class MLSMPM:
         K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
         K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
         H = torch.stack([K2, _shift(K2, -S0), _shift(K2, -2 * S0)], 1)  # (3, i, j, k, N)
-        vg = H.reshape(81, n_nodes).index_select(1, lin).view(3, 27, P) * w  # (3, 27, P)
-        S = torch.matmul(o_aug_t.T, vg)  # (3, 4, P): [sum w v_i, sum w v_i o^T]
+        H = H.reshape(81, n_nodes)
+        if chunk >= P:
+            vg = H.index_select(1, lin).view(3, 27, P) * w  # (3, 27, P)
+            S = torch.matmul(o_aug_t.T, vg)  # (3, 4, P): [sum w v_i, sum w v_i o^T]
+        else:
+            S = torch.empty(3, 4, P, dtype=dtype, device=device)
+            for s0 in range(0, P, chunk):
+                sl = slice(s0, s0 + chunk)
+                vg = H.index_select(1, lin[sl]).view(3, 27, -1).mul_(w[:, sl])
+                torch.matmul(o_aug_t.T, vg, out=S[:, :, sl])
         v_pic = S[:, 0].T  # (P, 3)
         C_new = (4.0 * inv_dx) * (S[:, 1:].permute(2, 0, 1) - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
         if alpha is None:  # alpha = 1 everywhere: the hand velocity has no weight
@@ -366,6 +383,12 @@ class MLSMPM:
         x_new = x + dt * v_new  # eq. 13
         F_new = F + dt * torch.matmul(C_new, F)  # eq. 14: (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
+
+    def _chunk(self, P: int) -> int:
+        """Particles per chunk of the stencil passes: all at once under autograd, cache-sized blocks otherwise."""
+        if torch.is_grad_enabled() or self.chunk_size <= 0:
+            return P
+        return self.chunk_size
 
     def _apply_colliders(
         self,
