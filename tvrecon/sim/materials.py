@@ -95,10 +95,11 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
     """Orthogonal factor R of the polar decomposition ``F = R S`` (S symmetric positive semi-definite).
 
     Scaled Newton iteration ``X <- (g X + X^-T / g) / 2`` with Frobenius-norm scaling ``g`` (Higham 1986) and the
-    analytic cofactor inverse. Convergence is quadratic (error_k+1 ~ error_k^2 / 2, and the step size estimates
-    the error), so it stops once the largest entry changed by less than ``sqrt(2 tol)``: the returned iterate is then
-    within ~``tol`` of R. Matches ``U V^T`` from ``torch.linalg.svd`` (also a reflection when ``det F < 0``, exactly
-    like the SVD formula) to round-off; 1 iteration at F = R, 3 for |sigma - 1| ~ 0.1.
+    analytic cofactor inverse; each particle iterates until it has converged. Convergence is quadratic
+    (error_k+1 ~ error_k^2 / 2, and the step size estimates the error), so a particle stops once its largest entry
+    changed by less than ``sqrt(2 tol)``: its iterate is then within ~``tol`` of R. Matches ``U V^T`` from
+    ``torch.linalg.svd`` (also a reflection when ``det F < 0``, exactly like the SVD formula) to round-off;
+    1 iteration at F = R, 3 for |sigma - 1| ~ 0.1.
 
     Args:
         F: (P, 3, 3) float32/float64 tensor, non-singular.
@@ -117,23 +118,30 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
         idx = _COF_CACHE.setdefault(F.device, torch.tensor(_COF_IDX, device=F.device))
     P = F.shape[0]
     X = F.reshape(P, 9).T.contiguous()  # (9, P): entries as contiguous rows, so every op below is a flat vector op
+    active: Tensor | None = None  # indices of the particles still iterating (None = all)
     for _ in range(max_iter):
-        g4 = X.index_select(0, idx)  # (36, P): the four factor tables of the cofactors
-        cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, P) = det(X) X^-T
-        det = (X[0:3] * cof[0:3]).sum(0)  # (P,)
+        Xa = X if active is None else X.index_select(1, active)
+        g4 = Xa.index_select(0, idx)  # (36, Pa): the four factor tables of the cofactors
+        cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, Pa) = det(X) X^-T
+        det = (Xa[0:3] * cof[0:3]).sum(0)  # (Pa,)
         inv_t = cof / det  # X^-T
         # Frobenius scaling g = (|X^-1|_F / |X|_F)^(1/2), ~1 near convergence, keeps Newton quadratically convergent
-        gs = (inv_t.square().sum(0) / X.square().sum(0)).pow(0.25)
-        X_new = 0.5 * (gs * X + inv_t / gs)
-        delta = float((X_new - X).detach().abs().amax()) if X.numel() else 0.0
-        X = X_new
-        if not delta == delta or delta == float("inf"):
+        gs = (inv_t.square().sum(0) / Xa.square().sum(0)).pow(0.25)
+        X_new = 0.5 * (gs * Xa + inv_t / gs)
+        delta = (X_new - Xa).detach().abs().amax(0)  # (Pa,)
+        X = X_new if active is None else X.index_copy(1, active, X_new)
+        if not bool(torch.isfinite(delta).all()):
             raise FloatingPointError(
                 "polar decomposition of a singular or non-finite deformation gradient F: the simulation became "
                 "unstable; reduce dt / hand speed, increase n_grid"
             )
-        if delta < stop:
+        busy = delta >= stop
+        n_busy = int(busy.sum())
+        if n_busy == 0:
             break
+        if n_busy < 0.5 * busy.numel():  # keep iterating only the particles that have not converged
+            sel = busy.nonzero()[:, 0]
+            active = sel if active is None else active[sel]
     return X.T.reshape(P, 3, 3)
 
 
