@@ -296,6 +296,13 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
     return tables
 
 
+def default_file_mode() -> int:
+    """``0o666`` minus the process umask: what ``open(path, "w")`` would give (mkstemp files are ``0o600``)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
     path = Path(path)
@@ -304,6 +311,7 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
+        os.chmod(tmp, default_file_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

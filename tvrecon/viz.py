@@ -22,6 +22,8 @@ import torch  # noqa: E402
 import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
+from tvrecon.tables import default_file_mode  # noqa: E402
+
 
 def _atomic_savefig(fig: plt.Figure, path: str | Path, dpi: int = 100) -> Path:
     path = Path(path)
@@ -30,6 +32,7 @@ def _atomic_savefig(fig: plt.Figure, path: str | Path, dpi: int = 100) -> Path:
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+        os.chmod(tmp, default_file_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -167,6 +170,7 @@ def export_obj(verts: torch.Tensor | np.ndarray, faces: torch.Tensor | np.ndarra
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".obj", dir=path.parent)
     with os.fdopen(fd, "w") as fh:
         fh.write(text)
+    os.chmod(tmp, default_file_mode())
     os.replace(tmp, path)
     return path
 

@@ -37,6 +37,7 @@ def test_render_and_export_roundtrip(tmp_path: Path) -> None:
     png = render_mesh_comparison(verts, faces, verts[:5], tmp_path / "r" / "cmp.png", "box", torch.rand(3, 16, 16))
     assert png.is_file() and not list(png.parent.glob(".*"))
     obj = export_obj(verts, faces, tmp_path / "m" / "box.obj")
+    assert obj.stat().st_mode & 0o644 == 0o644  # readable like a plain open(), not mkstemp's 0o600
     back = trimesh.load(obj, process=False)
     assert np.allclose(back.vertices, verts.numpy(), atol=1e-6) and np.array_equal(back.faces, faces.numpy())
     with pytest.raises(ValueError, match=r"pred_faces index outside"):
