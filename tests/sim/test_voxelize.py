@@ -1,5 +1,7 @@
 """Voxel carving of closed and open meshes, occupancy SDF, particle export."""
 
+import os
+
 import numpy as np
 import pytest
 import trimesh
@@ -65,6 +67,9 @@ def test_save_particles_ply(tmp_path):
     loaded = trimesh.load(path)
     assert np.allclose(np.asarray(loaded.vertices), x)
     assert [p.name for p in path.parent.iterdir()] == ["p.ply"]  # no temp files left behind
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # the usual mode, not mkstemp's 0600
     with pytest.raises(ValueError, match=r"\(P, 3\)"):
         save_particles_ply(tmp_path / "q.ply", x[:, :2])
 
