@@ -9,6 +9,8 @@ from tvrecon.data.render import sample_camera
 from tvrecon.data.touches import (
     TouchPolicy,
     cone_directions,
+    pad_footprint,
+    pad_reachable,
     resize_tactile,
     sample_touches,
     simulate_touches,
@@ -205,3 +207,44 @@ def test_real_simulation_contact_images(one_thread) -> None:
     # resized for the model, the contact stays non-zero at the centre
     big = resize_tactile(torch.stack([r.image for r in readings]), 64)
     assert big.shape == (2, 3, 64, 64) and (big[:, 2, 28:36, 28:36] > 0.2).all()
+
+
+def _groove() -> trimesh.Trimesh:
+    """A slab with two walls on top leaving a 0.1-wide groove along y in the middle (x in [-0.05, 0.05])."""
+    slab = trimesh.creation.box((1.0, 1.0, 0.2))
+    walls = []
+    for x in (-0.15, 0.15):
+        w = trimesh.creation.box((0.2, 0.4, 0.3))
+        w.apply_translation((x, 0.0, 0.25))
+        walls.append(w)
+    return trimesh.util.concatenate([slab, *walls])
+
+
+def test_pad_reachable_rejects_grooves() -> None:
+    mesh = _groove()
+    down = np.array([[0.0, 0.0, -1.0]] * 3)
+    pos = np.array([[0.0, 0.0, 0.1], [0.0, 0.42, 0.1], [0.0, -0.42, 0.1]])  # groove bottom, open slab top x2
+    ok = pad_reachable(mesh, pos, down, width=0.3, clearance=0.05)
+    assert ok.tolist() == [False, True, True]
+    # a pad narrower than the groove fits
+    assert pad_reachable(mesh, pos[:1], down[:1], width=0.08, clearance=0.05).tolist() == [True]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")
+def test_sim_aware_sampling_is_accepted_by_the_simulator(one_thread) -> None:
+    """With sim=..., touches on a gear (holes, teeth) are all placeable by the simulator; without, many are not."""
+    from tvrecon.data.shapes import make_shape
+    from tvrecon.sim.press import EIPSimulator, PressConfig
+    from tvrecon.sim.sensor import SensorConfig
+
+    gear = make_shape("gear", seed=0)
+    sim = EIPSimulator(SensorConfig(resolution=(32, 32)), PressConfig(n_grid=64))
+    width, clearance = pad_footprint(sim)
+    assert width == pytest.approx(2 * np.hypot(7.75, 7.75) / 64) and clearance > 0
+    t = sample_touches(gear, 4, seed=0, policy=TouchPolicy(cone_deg=10.0), sim=sim)
+    for p, d in zip(t["positions"], t["directions"]):
+        sim.press_batch(gear, p[None], d[None], max_steps=1)  # raises ValueError if the pad cannot be placed
+    plain = sample_touches(gear, 200, seed=0, policy=TouchPolicy(cone_deg=10.0))
+    ok = pad_reachable(gear, plain["positions"].numpy(), plain["directions"].numpy(), width, clearance)
+    assert 0.05 < 1 - ok.mean() < 0.95  # the filter matters on this object

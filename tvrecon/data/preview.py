@@ -204,8 +204,8 @@ def make_preview(
     camera = sample_camera(seed, image_size=image_size, fov_deg=fov_deg)
     view = render_view(mesh, camera, seed=seed)
     policy = TouchPolicy(cone_deg=cone_deg, visible_only=True)
-    tt = sample_touches(mesh, touches, seed, policy, camera=camera)
     sim = EIPSimulator(SensorConfig(resolution=(pad, pad)), PressConfig(n_grid=n_grid), device=device)
+    tt = sample_touches(mesh, touches, seed, policy, camera=camera, sim=sim)  # only touches the pad can reach
     readings = simulate_touches(sim, mesh, tt, progress=True)
     tactile = torch.stack([r.image.detach().cpu() for r in readings])  # (T, 3, h, w)
     labels = []

@@ -25,7 +25,16 @@ from tvrecon.data.render import Camera, ray_intersector, world_to_camera
 if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
     from tvrecon.sim.press import EIPSimulator, TactileReading
 
-__all__ = ["TouchPolicy", "sample_touches", "visible_points", "cone_directions", "simulate_touches", "resize_tactile"]
+__all__ = [
+    "TouchPolicy",
+    "cone_directions",
+    "pad_footprint",
+    "pad_reachable",
+    "resize_tactile",
+    "sample_touches",
+    "simulate_touches",
+    "visible_points",
+]
 
 
 def _default_strengths() -> tuple[dict, ...]:
@@ -145,21 +154,75 @@ def visible_points(mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarra
     return visible
 
 
+def pad_footprint(sim: EIPSimulator) -> tuple[float, float]:
+    """The simulator pad's footprint in world units: (width, clearance).
+
+    width: diagonal of the contact layer (covers the pad whatever its rotation about the press axis);
+    clearance: how far behind the contact point the simulator starts looking for the object (pad thickness +
+    start gap + 6 cells, as in `EIPSimulator` set-up), i.e. the space the pad needs free in front of the surface.
+    """
+    s, p = sim.sensor, sim.cfg
+    cell = float(p.domain_size) / int(p.n_grid)  # world units per grid cell
+    hx, hy = s.half_extent
+    width = 2.0 * float(np.hypot(hx, hy)) * cell
+    clearance = (float(s.thickness) + float(p.gap) + 6.0) * cell
+    return width, clearance
+
+
+def pad_reachable(
+    mesh: trimesh.Trimesh, positions: np.ndarray, directions: np.ndarray, width: float, clearance: float, k: int = 7
+) -> np.ndarray:
+    """Whether a flat pad of diagonal `width` can approach each touch: its footprint disc, lifted `clearance`
+    and 2 `clearance` behind the contact point against the press direction, lies outside the object (not in a
+    groove, a hole or a concave pocket narrower than the pad).
+
+    Args:
+        mesh: the object (watertight: inside/outside by ray parity).
+        positions: (N, 3) contact points. directions: (N, 3) unit press directions (into the object).
+        width: footprint diameter, world units. clearance: lift, world units.
+        k: footprint samples per side (k x k grid clipped to the disc).
+
+    Returns:
+        (N,) bool.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    d = np.asarray(directions, dtype=np.float64)
+    if len(positions) == 0:
+        return np.zeros(0, dtype=bool)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    helper = np.where(np.abs(d[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    e1 = np.cross(d, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(d, e1)
+    g = np.linspace(-0.5, 0.5, k) * width
+    gx, gy = np.meshgrid(g, g)
+    disc = np.hypot(gx, gy) <= 0.5 * width + 1e-12
+    gx, gy = gx[disc], gy[disc]  # (S,)
+    disc_pts = positions[:, None] + gx[None, :, None] * e1[:, None] + gy[None, :, None] * e2[:, None]  # (N, S, 3)
+    # two layers: where the simulator starts its rays, and where the pad itself may end up above them
+    pts = np.concatenate([disc_pts - lift * clearance * d[:, None] for lift in (1.0, 2.0)], axis=1)  # (N, 2S, 3)
+    inside = mesh.contains(pts.reshape(-1, 3)).reshape(len(positions), -1)
+    return ~inside.any(axis=1)
+
+
 def sample_touches(
     mesh: trimesh.Trimesh,
     n: int,
     seed: int,
     policy: TouchPolicy | None = None,
     camera: Camera | None = None,
+    sim: EIPSimulator | None = None,
 ) -> dict:
     """Sample `n` touches on `mesh` following `policy`.
 
     Args:
         mesh: the object, world coordinates (watertight, outward normals).
         n: number of touches T >= 1.
-        seed: RNG seed; the same (mesh, n, seed, policy, camera) gives the same touches.
+        seed: RNG seed; the same (mesh, n, seed, policy, camera, sim configs) gives the same touches.
         policy: the touch policy (default `TouchPolicy()`).
         camera: the view, required when `policy.visible_only`.
+        sim: optional simulator: when given, touches its pad cannot approach (see `pad_reachable`, e.g. inside a
+            hole or between gear teeth narrower than the pad) are rejected, so `simulate_touches` accepts them all.
 
     Returns:
         dict with "positions" (T, 3) float32 world points on the surface, "directions" (T, 3) float32 unit press
@@ -174,27 +237,33 @@ def sample_touches(
     if policy.visible_only and not isinstance(camera, Camera):
         raise ValueError("TouchPolicy.visible_only needs the view: pass camera=Camera(...) to sample_touches")
     rng = np.random.default_rng(seed)
-    if policy.visible_only:
-        picked_p, picked_f = [], []
-        count = n * int(policy.oversample)
-        for _ in range(4):  # grow the candidate pool when few points are visible
-            pts, faces = trimesh.sample.sample_surface(mesh, count, seed=rng)
-            keep = visible_points(mesh, pts, mesh.face_normals[faces], camera)
-            picked_p.append(pts[keep])
-            picked_f.append(faces[keep])
-            if sum(len(p) for p in picked_p) >= n:
-                break
-            count *= 4
-        points, faces = np.concatenate(picked_p)[:n], np.concatenate(picked_f)[:n]
-        if len(points) < n:
-            raise ValueError(
-                f"only {len(points)} of {n} touch points are visible from the camera: is the camera inside the "
-                "object or looking away? Use visible_only=False or another camera"
-            )
-    else:
-        points, faces = trimesh.sample.sample_surface(mesh, n, seed=rng)
-    normals = mesh.face_normals[faces]  # (T, 3) outward
-    directions = cone_directions(-normals, float(policy.cone_deg), rng)
+    filtered = policy.visible_only or sim is not None
+    footprint = pad_footprint(sim) if sim is not None else None
+    kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    count = n * int(policy.oversample) if filtered else n
+    for _ in range(4):  # grow the candidate pool when few candidates pass the filters
+        pts, faces = trimesh.sample.sample_surface(mesh, count, seed=rng)
+        normals = mesh.face_normals[faces]  # (C, 3) outward
+        dirs = cone_directions(-normals, float(policy.cone_deg), rng)
+        keep = np.ones(len(pts), dtype=bool)
+        if policy.visible_only:
+            keep &= visible_points(mesh, pts, normals, camera)
+        if footprint is not None:
+            idx = np.flatnonzero(keep)
+            keep[idx] = pad_reachable(mesh, pts[idx], dirs[idx], *footprint)
+        kept.append((pts[keep], normals[keep], dirs[keep]))
+        if sum(len(k[0]) for k in kept) >= n:
+            break
+        count *= 4
+    points, normals, directions = (np.concatenate([k[i] for k in kept])[:n] for i in range(3))
+    if len(points) < n:
+        what = " and ".join(
+            w for w, on in (("visible from the camera", policy.visible_only), ("reachable by the pad", sim)) if on
+        )
+        raise ValueError(
+            f"only {len(points)} of {n} touch points are {what}: is the camera inside the object or looking away, "
+            "or is the pad too large for this object? Use visible_only=False, another camera or a smaller pad"
+        )
     which = rng.integers(len(policy.strengths), size=n)
     return {
         "positions": torch.as_tensor(points, dtype=torch.float32),
