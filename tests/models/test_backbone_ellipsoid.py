@@ -33,8 +33,10 @@ def test_pretrained_without_cache_warns_once_and_never_downloads(tmp_path, monke
         raise AssertionError("must not download")
 
     monkeypatch.setattr(torch.hub, "load_state_dict_from_url", no_download)
+    monkeypatch.setattr(backbone_mod, "_warned_missing", False)
     with caplog.at_level(logging.WARNING, logger=backbone_mod.__name__):
         net = ResNet18Backbone(pretrained=True)
+        ResNet18Backbone(pretrained=True)  # a second backbone (tactile branch) does not warn again
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1 and "random initialisation" in warnings[0].getMessage()
     assert not net.pretrained_loaded

@@ -52,7 +52,7 @@ def nearest_neighbors(x: Tensor, y: Tensor, y_mask: Tensor | None = None, chunk:
         x: (B, N, 3) float.
         y: (B, M, 3) float.
         y_mask: (B, M) bool, False = padding (never chosen).
-        chunk: rows of x handled at once.
+        chunk: rows of x handled at once (None: keep each (B, chunk, M) distance block under ~2^25 entries).
 
     Returns:
         dist (B, N) float squared distance (differentiable in x and y) and idx (B, N) int64 into y.
@@ -61,6 +61,8 @@ def nearest_neighbors(x: Tensor, y: Tensor, y_mask: Tensor | None = None, chunk:
     _check_cloud(y, "y")
     if x.shape[0] != y.shape[0]:
         raise ValueError(f"x and y must have the same batch size, got {x.shape[0]} and {y.shape[0]}")
+    if chunk is None:
+        chunk = max(1, (1 << 25) // max(1, x.shape[0] * y.shape[1]))
     with torch.no_grad():
         idx = []
         for start in range(0, x.shape[1], chunk):

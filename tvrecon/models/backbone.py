@@ -19,6 +19,7 @@ __all__ = ["RESNET18_CHANNELS", "ResNet18Backbone", "cached_resnet18_weights_pat
 log = logging.getLogger(__name__)
 
 RESNET18_CHANNELS: tuple[int, int, int, int] = (64, 128, 256, 512)
+_warned_missing = False
 
 
 def cached_resnet18_weights_path() -> str:
@@ -45,7 +46,10 @@ def load_resnet18(pretrained: bool = False) -> tuple[nn.Module, bool]:
         model.load_state_dict(state)
         log.info("Loaded ImageNet ResNet-18 weights from %s", path)
         return model, True
-    log.warning(
+    global _warned_missing
+    report = log.info if _warned_missing else log.warning  # one warning per process, not one per backbone
+    _warned_missing = True
+    report(
         "ImageNet ResNet-18 weights not found at %s; using random initialisation (no download is attempted). "
         "Place the torchvision file there to use pretrained weights.",
         path,

@@ -24,6 +24,7 @@ of the camera and projects inside the image.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -31,7 +32,15 @@ from torch import Tensor, nn
 
 from tvrecon.models.projection import in_image, pixel_to_feature, project_with_depth
 
-__all__ = ["AggBlock", "DirectionFFN", "TactileVisualFusion", "TouchPlacement", "locate_touches", "place_embeddings"]
+__all__ = [
+    "AggBlock",
+    "DirectionFFN",
+    "TactileVisualFusion",
+    "TouchPlacement",
+    "add_maps_everywhere",
+    "locate_touches",
+    "place_embeddings",
+]
 
 
 class _SafeBatchNorm(nn.BatchNorm2d):
@@ -110,21 +119,16 @@ class DirectionFFN(nn.Module):
         return self.net(directions)
 
 
-class TouchPlacement(tuple):
-    """Where the valid touches land in the image: ``(batch_index (N,) int64, uv (N,2) float pixels,
-    touch_index (N,) int64 flat index into B*T)``, for the N touches that contribute."""
+class TouchPlacement(NamedTuple):
+    """Where the contributing touches land: N touches that are unmasked, in front of the camera and inside the image.
 
-    @property
-    def batch_index(self) -> Tensor:
-        return self[0]
+    batch_index: (N,) int64 sample of each touch; uv: (N, 2) float image pixel coordinates;
+    touch_index: (N,) int64 flat index into the B * T touches.
+    """
 
-    @property
-    def uv(self) -> Tensor:
-        return self[1]
-
-    @property
-    def touch_index(self) -> Tensor:
-        return self[2]
+    batch_index: Tensor
+    uv: Tensor
+    touch_index: Tensor
 
 
 def locate_touches(
@@ -151,7 +155,7 @@ def locate_touches(
     if touch_mask is not None:
         valid = valid & touch_mask.to(torch.bool)
     flat = valid.flatten().nonzero(as_tuple=True)[0]  # (N,)
-    return TouchPlacement((flat // T, uv.flatten(0, 1)[flat], flat))
+    return TouchPlacement(flat // T, uv.flatten(0, 1)[flat], flat)
 
 
 def place_embeddings(

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.models.backbone import ResNet18Backbone
-from tvrecon.models.fusion import TactileVisualFusion, locate_touches
+from tvrecon.models.fusion import TactileVisualFusion, TouchPlacement, locate_touches
 from tvrecon.models.gcn import MeshDeformer
 
 __all__ = ["MODES", "TactileVisualReconstructor"]
@@ -132,8 +132,12 @@ class TactileVisualReconstructor(nn.Module):
         K: Tensor,
         RT: Tensor,
         image_size: tuple[int, int],
-    ):
-        """Run the tactile branch on the visible touches only (folded into the batch; shared weights)."""
+    ) -> tuple[list[Tensor], Tensor | None, TouchPlacement] | None:
+        """Run the tactile branch on the contributing touches only (folded into the batch; shared weights).
+
+        Returns (tactile stage maps 4 x (N, C_i, h_i, w_i), direction embedding (N, C_max) or None, placement), or
+        None when no touch contributes.
+        """
         assert self.tactile is not None and self.fusion is not None
         if tactile.dim() != 5 or tactile.shape[2] != 3:
             raise ValueError(f"tactile must have shape (B, T, 3, h, w), got {tuple(tactile.shape)}")
