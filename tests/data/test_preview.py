@@ -40,6 +40,9 @@ def test_draw_and_atomic_save(tmp_path) -> None:
     assert w > 400 and h > 200
     assert arr.std() > 10  # not a blank canvas
     assert os.listdir(tmp_path / "sub") == ["p.png"]  # no temp file left behind
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~umask
     with pytest.raises(ValueError, match=r"tactile must have shape \(T, 3, h, w\)"):
         draw_preview(view["image"], cam, tt["positions"], tt["directions"], tactile[:2])
 
