@@ -248,3 +248,20 @@ def test_sim_aware_sampling_is_accepted_by_the_simulator(one_thread) -> None:
     plain = sample_touches(gear, 200, seed=0, policy=TouchPolicy(cone_deg=10.0))
     ok = pad_reachable(gear, plain["positions"].numpy(), plain["directions"].numpy(), width, clearance)
     assert 0.05 < 1 - ok.mean() < 0.95  # the filter matters on this object
+
+
+def test_visible_touches_land_on_the_rendered_object() -> None:
+    """Integration with the object library and the renderer: visible touches project onto object pixels whose
+    rendered depth matches the touch's camera-frame depth."""
+    from tvrecon.data.render import project_points, render_view, world_to_camera
+    from tvrecon.data.shapes import make_shape
+
+    mug = make_shape("mug", seed=3)
+    cam = sample_camera(2, image_size=160)
+    view = render_view(mug, cam, seed=0)
+    t = sample_touches(mug, 40, seed=1, policy=TouchPolicy(visible_only=True), camera=cam)
+    uv = project_points(t["positions"], cam.K, cam.RT).round().long()
+    z = world_to_camera(t["positions"], cam.RT)[:, 2]
+    assert view["mask"][uv[:, 1], uv[:, 0]].all()
+    err = (view["depth"][uv[:, 1], uv[:, 0]] - z).abs()
+    assert err.median() < 0.01 and (err < 0.03).float().mean() > 0.9
