@@ -64,7 +64,7 @@ class RenderConfig:
 
     image_size: int = 224
     distance: float = 2.0
-    fov_deg: float = 35.0
+    fov_deg: float = 45.0
     ambient: float = 0.3
     background: float = 1.0
 
@@ -245,7 +245,7 @@ class GeneratedDataset(Dataset):
         contact (M,) bool, depth (M,) float32.
         """
         M = self.touches_per_item
-        touches = sample_touches(mesh, M, seed=seed, policy=self.touch, camera=camera)
+        touches = sample_touches(mesh, M, seed=seed, policy=self.touch, camera=camera, sim=self.simulator)
         try:
             readings = simulate_touches(self.simulator, mesh, touches, batch_size=M)
         except ValueError:
@@ -284,7 +284,7 @@ class GeneratedDataset(Dataset):
                 if attempt > attempts:
                     raise ValueError(f"no placeable touch found for touch {t} after {attempts} re-draws: {why}")
                 sub = int(np.random.SeedSequence([seed, t, attempt]).generate_state(1)[0])
-                new = sample_touches(mesh, 1, seed=sub, policy=self.touch, camera=camera)
+                new = sample_touches(mesh, 1, seed=sub, policy=self.touch, camera=camera, sim=self.simulator)
                 why = rejected(new["positions"][0], new["directions"][0])
                 if why is None:
                     for k, v in new.items():
