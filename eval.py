@@ -23,6 +23,7 @@ os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
 import hydra  # noqa: E402
 import lightning as L  # noqa: E402
+import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
 from train import fix_test_touches, report_tables, save_results  # noqa: E402
@@ -110,7 +111,9 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
     trainer: L.Trainer = hydra.utils.instantiate(
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
-    trainer.test(model=model, datamodule=datamodule, ckpt_path=str(ckpt))
+    state = torch.load(ckpt, map_location="cpu", weights_only=True)  # plain tensors and hparams only
+    model.load_state_dict(state["state_dict"])
+    trainer.test(model=model, datamodule=datamodule)
     result = getattr(model, "test_results", None)
     if result is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")

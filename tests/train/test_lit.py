@@ -82,7 +82,11 @@ def test_select_touches_first_and_random() -> None:
 
 @pytest.mark.parametrize(
     ("mode", "expected"),
-    [("fusion", {"visual", "tv@2"}), ("visual_only", {"visual"}), ("tactile_only", {"tactile@2", "tactile@5"})],
+    [
+        pytest.param("fusion", {"visual", "tv@2"}, marks=pytest.mark.slow),  # + 7 renders and 6 .obj exports
+        ("visual_only", {"visual"}),
+        ("tactile_only", {"tactile@2", "tactile@5"}),
+    ],
 )
 def test_recon_fit_and_test_modes(tmp_path: Path, mode: str, expected: set[str]) -> None:
     export = mode == "fusion"  # renders cost ~1 s each: check the exports once
