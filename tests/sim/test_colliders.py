@@ -88,3 +88,23 @@ def test_bad_inputs():
     bad.vertices[0, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         MeshCollider(bad, n_grid=32)
+
+
+def test_mesh_collider_long_faces_cost_follows_region():
+    """A 64-section cylinder has side faces 100 cells long: only their part near the region is sampled."""
+    m = trimesh.creation.cylinder(radius=0.3, height=0.8, sections=64)
+    m.apply_translation([0.5 - 0.3 + 8 * DX, 0.5, 0.5])  # side surface crosses the region at x ~ 0.5 + 8 dx
+    lo = np.array([0.5 - 4 * DX, 0.5 - 12 * DX, 0.5 - 12 * DX])
+    hi = np.array([0.5 + 14 * DX, 0.5 + 12 * DX, 0.5 + 12 * DX])
+    mc = MeshCollider(m, n_grid=128, region=(lo, hi))
+    # the surface inside the grown region is ~ 32 x 32 cells at 16 samples per cell^2 (x2 for the lattice):
+    # whole near faces (the old sampling) would give > 1 M samples
+    assert 0 < mc.n_samples < 60_000
+    dims = mc.dims
+    axes = [(mc.lo_index[k].item() + np.arange(dims[k])) * DX for k in range(3)]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    ref = -trimesh.proximity.signed_distance(m, nodes)  # trimesh: > 0 inside
+    near = np.abs(ref) < 2 * DX
+    assert near.sum() > 1000
+    err = np.abs(mc.node_sdf.numpy().reshape(-1) - ref)[near]
+    assert err.max() < 0.05 * DX

@@ -15,7 +15,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-__all__ = ["Collider", "SphereCollider", "PlaneCollider", "MeshCollider"]
+__all__ = ["Collider", "SphereCollider", "PlaneCollider", "MeshCollider", "clip_to_box"]
 
 
 @runtime_checkable
@@ -102,13 +102,43 @@ class PlaneCollider:
         return self.n.to(points).expand(points.shape[0], 3).clone()
 
 
+def clip_to_box(mesh: trimesh.Trimesh, lo: np.ndarray, hi: np.ndarray) -> trimesh.Trimesh | None:
+    """The part of the surface of ``mesh`` inside the box ``[lo, hi]`` (open surface, no caps), or None if empty.
+
+    Faces overlapping the box are cut by its six planes (``trimesh.intersections.slice_faces_plane``), so a long face
+    that only crosses the box contributes only the piece inside it.
+
+    Args:
+        mesh: triangle mesh. lo, hi: (3,) box corners.
+    Returns:
+        a mesh of the clipped triangles (vertices (V, 3) float64, faces (F, 3) int64), or None.
+    """
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    tri = np.asarray(mesh.triangles, dtype=np.float64)
+    near = np.flatnonzero((tri.min(1) <= hi).all(1) & (tri.max(1) >= lo).all(1))
+    if len(near) == 0:
+        return None
+    faces = np.asarray(mesh.faces)[near]
+    used, inv = np.unique(faces, return_inverse=True)
+    verts, faces = np.asarray(mesh.vertices, dtype=np.float64)[used], inv.reshape(-1, 3)
+    for k in range(3):
+        for sign, origin in ((1.0, lo), (-1.0, hi)):
+            normal = np.zeros(3)
+            normal[k] = sign
+            verts, faces, _ = trimesh.intersections.slice_faces_plane(verts, faces, normal, origin)
+            if len(faces) == 0:
+                return None
+    return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
+
+
 class MeshCollider:
     """Rigid mesh as a signed distance field sampled on the lattice nodes of a region, looked up trilinearly.
 
     Sign: ``mesh.contains`` (ray parity, embree) for watertight meshes; voxel carving from depth maps
     (``voxelize.carve_points``) for open meshes, whose zero-thickness walls additionally count as solid within half a
     cell so that a pad cannot slip through them. Unsigned distance: nearest of dense surface samples (spacing dx/4,
-    only on faces near the region; scipy cKDTree). Normal: central-difference gradient of the node sdf.
+    on the surface clipped to the region box grown by the 4-cell distance cap; scipy cKDTree), refined
+    to the exact distance to the faces of the 4 nearest samples. Normal: central-difference gradient of the node sdf.
 
     Args:
         mesh: trimesh mesh already in domain coordinates.
@@ -148,17 +178,26 @@ class MeshCollider:
         axes = [np.arange(lo_i[k], hi_i[k] + 1) * dx for k in range(3)]
         nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)  # (N, 3)
 
-        # unsigned distance from surface samples of the faces near the region
+        # unsigned distance from surface samples of the faces near the region, clipped to the region box grown by
+        # the distance cap: only surface within `margin` of a node can be its nearest sample below the cap, so the
+        # sample count follows the region, not the length of the faces crossing it
         margin = 4 * dx
-        tri = np.asarray(mesh.triangles)
-        near = (tri.min(1) <= hi_pt + margin).all(1) & (tri.max(1) >= lo_pt - margin).all(1)
-        pts, _ = surface_samples(mesh, spacing=dx / 4, faces=np.flatnonzero(near))
-        if len(pts):
+        clipped = clip_to_box(mesh, lo_i * dx - margin, hi_i * dx + margin)
+        self.n_samples = 0
+        dist = np.full(len(nodes), margin)  # no surface near the region: "far"
+        if clipped is not None:
+            pts, fid = surface_samples(clipped, spacing=dx / 4)
+            self.n_samples = len(pts)
             # nodes farther than the margin only need "far": the bound keeps the query fast
-            dist, _ = cKDTree(pts).query(nodes, k=1, distance_upper_bound=margin)
-            dist = np.minimum(dist, margin)
-        else:  # no surface near the region: distance to the mesh bounding box
-            dist = np.full(len(nodes), margin)
+            sd, si = cKDTree(pts).query(nodes, k=4, distance_upper_bound=margin)
+            close = np.flatnonzero(np.isfinite(sd[:, 0]))
+            # exact point-triangle distance to the faces of the 4 nearest samples (the samples only find them)
+            cand = fid[np.minimum(si[close], len(pts) - 1)]  # (C, 4)
+            ok = np.isfinite(sd[close])
+            tris = np.asarray(clipped.triangles)[cand.reshape(-1)]
+            q = np.repeat(nodes[close], 4, axis=0)
+            exact = np.linalg.norm(trimesh.triangles.closest_point(tris, q) - q, axis=1).reshape(-1, 4)
+            dist[close] = np.minimum(np.where(ok, exact, np.inf).min(1), margin)
         if mesh.is_watertight:
             inside = mesh.contains(nodes)
         else:

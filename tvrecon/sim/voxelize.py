@@ -62,11 +62,16 @@ def view_directions(n_views: int) -> np.ndarray:
 def surface_samples(
     mesh: trimesh.Trimesh, spacing: float, faces: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic surface points no farther than ``spacing`` apart on every triangle (barycentric lattice).
+    """Deterministic surface points no farther than ``spacing`` apart on every triangle (edge-adapted lattice).
+
+    Each triangle gets the lattice ``v0 + (i / n1) e1 + (j / n2) e2`` (``i / n1 + j / n2 <= 1``) spanned by the two
+    edges at its largest angle, each edge divided into steps of at most ``spacing``, plus samples every
+    ``spacing`` on its longest edge. The count follows the triangle's area (a long sliver does not get the
+    square of its length), and every point of the face lies within ``spacing / sqrt(2)`` of a sample.
 
     Args:
         mesh: triangle mesh.
-        spacing: maximum distance between neighbouring samples on a face.
+        spacing: maximum distance between neighbouring samples along the lattice directions.
         faces: optional (F',) indices of the faces to sample (default all).
 
     Returns:
@@ -78,17 +83,31 @@ def surface_samples(
     tri = np.asarray(mesh.triangles, dtype=np.float64)[fidx]  # (F', 3, 3)
     if len(tri) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
-    n_sub = np.maximum(1, np.ceil(edge / spacing).astype(np.int64))
-    pts, ids = [], []
-    for n in np.unique(n_sub):
-        sel = np.flatnonzero(n_sub == n)
-        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-        m = (i + j) <= n
-        bary = np.stack([i[m], j[m], n - i[m] - j[m]], 1) / n  # (K, 3)
-        pts.append(np.einsum("kc,fcd->fkd", bary, tri[sel]).reshape(-1, 3))
-        ids.append(np.repeat(fidx[sel], len(bary)))
-    return np.concatenate(pts), np.concatenate(ids)
+    # put the vertex opposite the longest edge first: e1, e2 are then the two shorter edges
+    opp = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)  # (F', 3) length of the edge opposite v_k
+    first = opp.argmax(1)
+    order = (first[:, None] + np.arange(3)[None]) % 3
+    tri = np.take_along_axis(tri, order[..., None], axis=1)
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    n1 = np.maximum(1, np.ceil(np.linalg.norm(e1, axis=1) / spacing)).astype(np.int64)
+    n2 = np.maximum(1, np.ceil(np.linalg.norm(e2, axis=1) / spacing)).astype(np.int64)
+    # rows i = 0..n1 of each triangle, row i holds j = 0..floor(n2 (1 - i / n1))
+    row_tri = np.repeat(np.arange(len(tri)), n1 + 1)
+    row_i = np.arange(len(row_tri)) - np.repeat(np.cumsum(n1 + 1) - (n1 + 1), n1 + 1)
+    row_len = np.floor(n2[row_tri] * (1.0 - row_i / n1[row_tri]) + 1e-9).astype(np.int64) + 1
+    pt_tri = np.repeat(row_tri, row_len)
+    pt_i = np.repeat(row_i, row_len)
+    pt_j = np.arange(len(pt_tri)) - np.repeat(np.cumsum(row_len) - row_len, row_len)
+    a = (pt_i / n1[pt_tri])[:, None]
+    b = (pt_j / n2[pt_tri])[:, None]
+    lattice = tri[pt_tri, 0] + a * e1[pt_tri] + b * e2[pt_tri]
+    # the longest edge (v1 -> v2), which the lattice only reaches at its ends
+    n3 = np.maximum(1, np.ceil(opp.max(1) / spacing)).astype(np.int64)
+    ed_tri = np.repeat(np.arange(len(tri)), n3 + 1)
+    ed_k = np.arange(len(ed_tri)) - np.repeat(np.cumsum(n3 + 1) - (n3 + 1), n3 + 1)
+    t = (ed_k / n3[ed_tri])[:, None]
+    edge = tri[ed_tri, 1] + t * (tri[ed_tri, 2] - tri[ed_tri, 1])
+    return np.concatenate([lattice, edge]), np.concatenate([fidx[pt_tri], fidx[ed_tri]])
 
 
 def _basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
