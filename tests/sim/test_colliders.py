@@ -108,3 +108,16 @@ def test_mesh_collider_long_faces_cost_follows_region():
     assert near.sum() > 1000
     err = np.abs(mc.node_sdf.numpy().reshape(-1) - ref)[near]
     assert err.max() < 0.05 * DX
+
+
+def test_mesh_collider_at_nodes_equals_lookup():
+    """The MPM grid's gather at lattice nodes equals the trilinear sdf / normal there (inside and outside the table)."""
+    mc = MeshCollider(_sphere_mesh(), n_grid=128, region=REGION)
+    lo = np.floor(REGION[0] / DX).astype(int) - 3
+    hi = np.ceil(REGION[1] / DX).astype(int) + 3
+    g = torch.Generator().manual_seed(1)
+    idx = torch.stack([torch.randint(int(lo[k]), int(hi[k]) + 1, (3000,), generator=g) for k in range(3)], 1)
+    sdf, n = mc.at_nodes(idx)
+    pos = idx.to(torch.float32) * DX
+    assert torch.allclose(sdf, mc.sdf(pos), atol=1e-6)
+    assert torch.allclose(n, mc.normal(pos), atol=1e-5)

@@ -7,7 +7,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.sim.press import EIPSimulator, PressConfig, chamfer_eq13
+from tvrecon.sim.press import EIPSimulator, PressConfig, chamfer_eq13, chamfer_reaches
 from tvrecon.sim.sensor import SensorConfig, pad_lattice
 
 SPHERE = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
@@ -64,7 +64,9 @@ def test_stiffer_pad_indents_less_at_same_force(sim: EIPSimulator) -> None:
 
 
 def test_release_returns_to_rest_clamped_not_linear(sim: EIPSimulator) -> None:
-    kw = dict(release_steps=70, damping=10.0, record_every=5)
+    # gap 1 cell (the scene this bound was set on): the residual hovers at 0.07-0.12 cells with the hold length,
+    # for gap 0.5 and 1 alike, so the 0.1 bound is phase-sensitive; keep the original scene
+    kw = dict(release_steps=70, damping=10.0, record_every=5, gap=1.0)
     clamped = sim.press(SPHERE, TOP, DOWN, alpha_profile="clamped", depth=1.0, **kw)
     linear = sim.press(SPHERE, TOP, DOWN, alpha_profile="linear", depth=1.5, **kw)
     for r in (clamped, linear):
@@ -205,3 +207,15 @@ def test_gradient_matches_finite_differences() -> None:
             fd = (loss(*args(value + h)) - loss(*args(value - h))) / (2 * h)
             assert abs(float(fd)) > 1e-2, "the scene must be sensitive to the parameter"
             assert float(grad) == pytest.approx(float(fd), rel=0.05)
+
+
+def test_chamfer_reaches_agrees_with_chamfer() -> None:
+    """The bounded terminal check decides like comparing the eq. 13 chamfer, small and large deformations."""
+    cfg = SensorConfig(resolution=(9, 7), layers=2)
+    x0 = pad_lattice(cfg)[:63].double()
+    g = torch.Generator().manual_seed(3)
+    for scale in (0.02, 0.1, 0.3, 0.6):
+        x = x0 + scale * torch.randn(63, 3, generator=g, dtype=torch.float64)
+        value = chamfer_eq13(x, x0, (9, 7, cfg.spacing))
+        for thr in (0.5 * value, 0.999 * value, 1.001 * value, 2.0 * value):
+            assert chamfer_reaches(x, x0, (9, 7, cfg.spacing), thr) == (value >= thr)

@@ -424,9 +424,14 @@ class MLSMPM:
                 forces.append(torch.zeros(3, dtype=dtype, device=device))
                 continue
             mb = gm[b * nb : (b + 1) * nb]
-            pos = (local + torch.tensor(lo_list[b], device=device)).to(dtype) * self.dx  # (nb, 3) node positions
-            sdf = col.sdf(pos)
-            n = col.normal(pos)
+            node = local + torch.tensor(lo_list[b], device=device)  # (nb, 3) global node indices
+            if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
+                sdf, n = col.at_nodes(node)
+                sdf, n = sdf.to(dtype), n.to(dtype)
+            else:
+                pos = node.to(dtype) * self.dx  # (nb, 3) node positions
+                sdf = col.sdf(pos)
+                n = col.normal(pos)
             vn = (vb * n).sum(1, keepdim=True)  # (nb, 1)
             hit = (sdf < 0)[:, None] & (vn < 0) & (mb > 0)[:, None]
             vt = vb - vn * n

@@ -44,7 +44,8 @@ class PressConfig:
     Attributes:
         n_grid: grid cells across the domain (dx = 1 / n_grid in domain units).
         domain_size: world units spanned by the domain (the mesh is scaled by 1 / domain_size).
-        gap: start gap between the contact layer and the object's highest point under the pad, in cells.
+        gap: start gap between the contact layer and the object's highest point under the pad, in cells (default 0.5:
+            the grid contact reaches ~0.5-1.5 cells ahead of the particles, so a larger gap only adds approach steps).
         speed: hand speed v_r in domain units / s; None -> ``speed_fraction`` * elastic (P-)wave speed.
         speed_fraction: fraction of the P-wave speed sqrt((lambda + 2 mu) / rho) used when ``speed`` is None.
         threshold: eq. 13 chamfer threshold (squared cells per contact particle); the default stop rule.
@@ -62,7 +63,7 @@ class PressConfig:
 
     n_grid: int = 128
     domain_size: float = 1.0
-    gap: float = 1.0
+    gap: float = 0.5
     speed: float | None = None
     speed_fraction: float = 0.1
     threshold: float | None = DEFAULT_THRESHOLD
@@ -169,6 +170,30 @@ def chamfer_eq13(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | None =
         d_ab2 = d_ab**2
     d_ba, _ = cKDTree(a).query(b, workers=1)
     return float(d_ab2.mean() + (d_ba**2).mean())
+
+
+def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], threshold: float) -> bool:
+    """Whether ``chamfer_eq13(x, x0, lattice) >= threshold``, usually without a k-d tree.
+
+    The second chamfer term (rest lattice -> nearest particle) is at most the mean squared distance of each rest
+    point to *its own* particle (same index, both centred), so when the exact first term plus that bound stays
+    below the threshold the answer is False; only otherwise is the exact value computed. Same result as comparing
+    :func:`chamfer_eq13`, at a fraction of the cost per step.
+
+    Args:
+        x: (N, 3) contact layer now, in cells. x0: (N, 3) planar rest lattice, in cells.
+        lattice: (H, W, spacing) of ``x0``. threshold: squared cells per particle.
+    """
+    a = (x - x.mean(0)).detach()
+    b = (x0 - x0.mean(0)).detach().to(a)
+    H, W, sp = lattice
+    j = torch.clamp(torch.round(a[:, 0] / sp + (W - 1) / 2), 0, W - 1)
+    i = torch.clamp(torch.round(a[:, 1] / sp + (H - 1) / 2), 0, H - 1)
+    d_ab2 = (a[:, 0] - (j - (W - 1) / 2) * sp) ** 2 + (a[:, 1] - (i - (H - 1) / 2) * sp) ** 2 + a[:, 2] ** 2
+    upper = float(d_ab2.mean() + ((a - b) ** 2).sum(1).mean())
+    if upper < float(threshold) * (1.0 - 1e-6):
+        return False
+    return chamfer_eq13(x, x0, lattice) >= float(threshold)
 
 
 def _check_mesh(mesh: trimesh.Trimesh) -> None:
@@ -513,7 +538,7 @@ class EIPSimulator:
             recent = tc.force_hist[-3:]
             return sum(recent) / len(recent) >= float(p.force)
         if p.threshold is not None and tc.contact:
-            return chamfer_eq13(contact_cells, x0_contact, lattice) >= float(p.threshold)
+            return chamfer_reaches(contact_cells, x0_contact, lattice, float(p.threshold))
         return False
 
     @staticmethod
