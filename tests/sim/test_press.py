@@ -55,17 +55,19 @@ def test_normal_grows_with_depth(sim: EIPSimulator) -> None:
 
 
 def test_stiffer_pad_indents_less_at_same_force(sim: EIPSimulator) -> None:
-    soft = sim.press(SPHERE, TOP, DOWN, E=3.0, speed=0.4, force=0.003)
-    stiff = sim.press(SPHERE, TOP, DOWN, E=12.0, speed=0.4, force=0.003)
+    # 0.01: the grid contact starts within the 1-cell gap (touch plane half-way between node planes), so a smaller
+    # force is reached before the hand passes the gap and both depths read 0
+    soft = sim.press(SPHERE, TOP, DOWN, E=3.0, speed=0.4, force=0.01)
+    stiff = sim.press(SPHERE, TOP, DOWN, E=12.0, speed=0.4, force=0.01)
     for r in (soft, stiff):
-        assert -float(r.force @ r.direction) == pytest.approx(0.003, rel=0.5)
+        assert -float(r.force @ r.direction) == pytest.approx(0.01, rel=0.5)
     assert float(stiff.image[2].max()) < 0.8 * float(soft.image[2].max())
     assert stiff.depth < soft.depth
 
 
 def test_release_returns_to_rest_clamped_not_linear(sim: EIPSimulator) -> None:
     # gap 1 cell (the scene this bound was set on): the residual hovers at 0.07-0.12 cells with the hold length,
-    # for gap 0.5 and 1 alike, so the 0.1 bound is phase-sensitive; keep the original scene
+    # so the 0.1 bound is phase-sensitive; pin the scene
     kw = dict(release_steps=70, damping=10.0, record_every=5, gap=1.0)
     clamped = sim.press(SPHERE, TOP, DOWN, alpha_profile="clamped", depth=1.0, **kw)
     linear = sim.press(SPHERE, TOP, DOWN, alpha_profile="linear", depth=1.5, **kw)
@@ -99,11 +101,11 @@ def test_batched_release_equals_sequential() -> None:
         SensorConfig(resolution=(6, 6), layers=4), PressConfig(n_grid=32, speed_fraction=0.3, max_depth=1.5)
     )
     box = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
-    kw = dict(release_steps=12, record_every=4)
-    batch = sim.press_batch([SPHERE, box], [TOP, [0.0, 0.0, 0.3]], [DOWN, DOWN], force=0.002, **kw)
+    kw = dict(release_steps=12, record_every=4)  # force 0.006: the sphere and the box stop at different steps
+    batch = sim.press_batch([SPHERE, box], [TOP, [0.0, 0.0, 0.3]], [DOWN, DOWN], force=0.006, **kw)
     assert batch[0].steps != batch[1].steps
     for r, (m, p) in zip(batch, [(SPHERE, TOP), (box, [0.0, 0.0, 0.3])]):
-        one = sim.press(m, p, DOWN, force=0.002, **kw)
+        one = sim.press(m, p, DOWN, force=0.006, **kw)
         assert r.steps == one.steps and r.frame_steps == one.frame_steps
         torch.testing.assert_close(r.residual, one.residual, atol=1e-4, rtol=1e-4)
         torch.testing.assert_close(r.particles, one.particles, atol=1e-5, rtol=1e-5)
@@ -219,3 +221,30 @@ def test_chamfer_reaches_agrees_with_chamfer() -> None:
         value = chamfer_eq13(x, x0, (9, 7, cfg.spacing))
         for thr in (0.5 * value, 0.999 * value, 1.001 * value, 2.0 * value):
             assert chamfer_reaches(x, x0, (9, 7, cfg.spacing), thr) == (value >= thr)
+
+
+def test_can_side_has_no_streak_on_a_facet_edge() -> None:
+    """A lathed can (48 facets) pressed on a facet edge reads like one pressed on a facet centre: no bright streak.
+
+    Regression: the touch plane sat on a grid node plane, so the nodes along the contact line had sdf ~ 0 and the
+    0.01-cell ridge of a facet edge turned them negative: the pad was pushed half a cell early along the edge only
+    (max 0.91 vs median 0.46 cells, while the facet centre gave a uniform 0.45).
+    """
+    from scipy.ndimage import median_filter
+
+    from tvrecon.data.shapes import make_shape
+
+    can = make_shape("can", 0)
+    can.apply_scale(0.07 / can.extents.max())
+    can.apply_translation(-can.bounds.mean(0))
+    radius = can.extents[0] / 2
+    sim = EIPSimulator(SensorConfig(resolution=(24, 24), layers=4), PressConfig(n_grid=64, domain_size=0.08))
+    peaks = []
+    for ang in np.deg2rad([0.0, 3.75]):  # a facet edge of the lathe, then a facet centre
+        d = np.array([-np.cos(ang), -np.sin(ang), 0.0])
+        z = sim.press(can, -d * radius, d, depth=1.0, threshold=None).image[2].numpy()
+        spikes = np.abs(z - median_filter(z, 3, mode="nearest"))[1:-1, 1:-1]
+        assert spikes.max() < 0.05, f"isolated spike of {spikes.max():.3f} cells at {np.rad2deg(ang)} deg"
+        assert z.max() - np.median(z) < 0.15  # no streak standing out of the contact
+        peaks.append(z.max())
+    assert peaks[0] == pytest.approx(peaks[1], rel=0.1)

@@ -3,11 +3,13 @@
 Coordinates. For every touch the simulation domain ``[0, 1)^3`` (``n_grid`` cells spanning ``domain_size`` world
 units) is attached to the *sensor frame* (see :func:`tvrecon.sim.sensor.sensor_frame`): domain x, y follow the
 contact plane and domain -z is the press direction, so the pad is aligned with the grid whatever the world
-direction. The domain centre (0.5, 0.5, 0.5) is the *touch point*: laterally the given ``position``, along the
+direction. The domain point (0.5, 0.5, 0.5 + dx / 2) is the *touch point*: laterally the given ``position``, along the
 press axis the highest point of the object under the pad's footprint (found by ray casting), so the pad starts
 ``gap`` cells in front of the first point it will touch. World <-> domain::
 
-    u = R^T (w - origin) / domain_size + 0.5        w = origin + R (u - 0.5) domain_size
+    u = R^T (w - origin) / domain_size + c        w = origin + R (u - c) domain_size,   c = (0.5, 0.5, 0.5 + dx / 2)
+
+(the touch plane lies half-way between grid node planes, see ``_touch_z``)
 
 Stop rules (checked after every step; the first rule that is configured decides, in this order):
 ``depth`` (indentation past first contact, cells) > ``force`` (normal contact force) > ``threshold`` (paper
@@ -44,8 +46,10 @@ class PressConfig:
     Attributes:
         n_grid: grid cells across the domain (dx = 1 / n_grid in domain units).
         domain_size: world units spanned by the domain (the mesh is scaled by 1 / domain_size).
-        gap: start gap between the contact layer and the object's highest point under the pad, in cells (default 0.5:
-            the grid contact reaches ~0.5-1.5 cells ahead of the particles, so a larger gap only adds approach steps).
+        gap: start gap between the contact layer and the object's highest point under the pad, in cells. The grid
+            contact reaches the node plane 1.5 cells below the particles; with the touch plane half-way between node
+            planes (``_touch_z``) the default 1.0 is the smallest gap that starts out of contact, and the first
+            step already touches (no approach steps). Below 1.0 the pad starts in grid contact.
         speed: hand speed v_r in domain units / s; None -> ``speed_fraction`` * elastic (P-)wave speed.
         speed_fraction: fraction of the P-wave speed sqrt((lambda + 2 mu) / rho) used when ``speed`` is None.
         threshold: eq. 13 chamfer threshold (squared cells per contact particle); the default stop rule.
@@ -63,7 +67,7 @@ class PressConfig:
 
     n_grid: int = 128
     domain_size: float = 1.0
-    gap: float = 0.5
+    gap: float = 1.0
     speed: float | None = None
     speed_fraction: float = 0.1
     threshold: float | None = DEFAULT_THRESHOLD
@@ -120,7 +124,7 @@ class TactileReading:
         force: (3,) float32 contact force on the pad in world axes (simulation units), at the last press step.
         contact: whether the object ever pushed on the pad.
         frame: (3, 3) float32 sensor frame R (columns e_x, e_y, e_z in world), world = R @ local.
-        origin: (3,) float32 world point at the domain centre (the touch point).
+        origin: (3,) float32 world point at the touch point (domain (0.5, 0.5, 0.5 + dx / 2)).
         residual: (3, H, W) image after the release phase, or None without release.
         frames: (K, 3, H, W) recorded images (``record_every``), or None.
         frame_steps: the K step indices of ``frames``.
@@ -194,6 +198,17 @@ def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], thre
     if upper < float(threshold) * (1.0 - 1e-6):
         return False
     return chamfer_eq13(x, x0, lattice) >= float(threshold)
+
+
+def _touch_z(dx: float) -> float:
+    """Domain z of the touch plane (the object's highest point under the pad): half-way between two grid node planes.
+
+    The grid contact is decided per node by the sign of the sdf. With the touch plane on a node plane (z = 0.5), the
+    nodes along a flat or cylindrical contact line sit at sdf ~ 0, and 0.01-cell geometry (a facet ridge, a tiny
+    tilt) flips their sign: the pad was pushed half a cell early on one stretch of the line only, a bright streak
+    (e.g. a lathed can pressed on a facet edge). Half-way between node planes they sit at +-0.5 cells.
+    """
+    return 0.5 + 0.5 * dx
 
 
 def _check_mesh(mesh: trimesh.Trimesh) -> None:
@@ -333,15 +348,16 @@ class EIPSimulator:
             return _Touch(R=R, origin=pos, direction=d, collider=None, reachable=False)
         h = float(heights.max())
         origin = pos + R[:, 2] * (h * S)
-        dom = local - np.array([0.0, 0.0, h]) + 0.5
+        zt = _touch_z(dx)
+        dom = local - np.array([0.0, 0.0, h]) + np.array([0.5, 0.5, zt])
         mdom = trimesh.Trimesh(vertices=dom, faces=np.asarray(mesh.faces), process=False)
         hx, hy = s.half_extent
         travel = float(p.gap) + float(p.max_depth)
-        lo = np.array([0.5 - (hx + 3) * dx, 0.5 - (hy + 3) * dx, 0.5 - (travel - float(p.gap) + 3) * dx])
-        hi = np.array([0.5 + (hx + 3) * dx, 0.5 + (hy + 3) * dx, 0.5 + (float(p.gap) + 2) * dx])
+        lo = np.array([0.5 - (hx + 3) * dx, 0.5 - (hy + 3) * dx, zt - (travel - float(p.gap) + 3) * dx])
+        hi = np.array([0.5 + (hx + 3) * dx, 0.5 + (hy + 3) * dx, zt + (float(p.gap) + 2) * dx])
         collider = _colliders.MeshCollider(mdom, n_grid=int(p.n_grid), region=(lo, hi), device=self.device)
         x_rest = pad_lattice(s, device=self.device) * dx + torch.tensor(
-            [0.5, 0.5, 0.5 + float(p.gap) * dx], device=self.device
+            [0.5, 0.5, zt + float(p.gap) * dx], device=self.device
         )
         inside = int((collider.sdf(x_rest) < 0).sum())
         if inside:
@@ -420,7 +436,7 @@ class EIPSimulator:
 
         lat = pad_lattice(s, device=dev)  # (P, 3) cells
         P = lat.shape[0]
-        x_rest = lat * dx + torch.tensor([0.5, 0.5, 0.5 + float(p.gap) * dx], device=dev)  # (P, 3) domain
+        x_rest = lat * dx + torch.tensor([0.5, 0.5, _touch_z(dx) + float(p.gap) * dx], device=dev)  # (P, 3) domain
         alpha1 = alpha_profile(s, device=dev)  # (P,)
         vol = (float(s.spacing) * dx) ** 3
         zero_img = torch.zeros(3, H, W, dtype=torch.float32, device=dev)
@@ -549,7 +565,8 @@ class EIPSimulator:
 
     def _to_world(self, tc: _Touch, u: Tensor, p: PressConfig) -> Tensor:
         """(N, 3) domain -> (N, 3) world."""
-        return tc.origin.to(u.device) + (u - 0.5) * float(p.domain_size) @ tc.R.to(u.device).T
+        c = torch.tensor([0.5, 0.5, _touch_z(1.0 / int(p.n_grid))], dtype=u.dtype, device=u.device)
+        return tc.origin.to(u.device) + (u - c) * float(p.domain_size) @ tc.R.to(u.device).T
 
     def _record(self, tc: _Touch, x_pad: Tensor, x0c: Tensor, dx: float, s: SensorConfig, p: PressConfig) -> None:
         H, W = s.resolution
@@ -563,7 +580,7 @@ class EIPSimulator:
     ) -> TactileReading:
         dx = 1.0 / int(p.n_grid)
         disp = tc.disp.detach().cpu() if tc.disp is not None else torch.zeros(3)
-        centre = torch.tensor([0.5, 0.5, 0.5 + float(p.gap) * dx]) + disp
+        centre = torch.tensor([0.5, 0.5, _touch_z(dx) + float(p.gap) * dx]) + disp
         return TactileReading(
             image=img,
             position=self._to_world(tc, centre[None], p)[0].to(torch.float32),
