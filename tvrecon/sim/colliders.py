@@ -136,7 +136,7 @@ class MeshCollider:
 
     Sign: ``mesh.contains`` (ray parity, embree) for watertight meshes; voxel carving from depth maps
     (``voxelize.carve_points``) for open meshes, whose zero-thickness walls additionally count as solid within half a
-    cell so that a pad cannot slip through them. Unsigned distance: nearest of dense surface samples (spacing dx/4,
+    cell so that a pad cannot slip through them. Unsigned distance: nearest of surface samples (spacing dx/2,
     on the surface clipped to the region box grown by the 4-cell distance cap; scipy cKDTree), refined
     to the exact distance to the faces of the 4 nearest samples. Normal: central-difference gradient of the node sdf.
 
@@ -186,7 +186,7 @@ class MeshCollider:
         self.n_samples = 0
         dist = np.full(len(nodes), margin)  # no surface near the region: "far"
         if clipped is not None:
-            pts, fid = surface_samples(clipped, spacing=dx / 4)
+            pts, fid = surface_samples(clipped, spacing=dx / 2)
             self.n_samples = len(pts)
             # nodes farther than the margin only need "far": the bound keeps the query fast
             sd, si = cKDTree(pts).query(nodes, k=4, distance_upper_bound=margin)
