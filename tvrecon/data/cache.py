@@ -33,7 +33,7 @@ import torch
 log = logging.getLogger(__name__)
 
 #: Bump whenever the code that turns a spec into a sample changes its output; part of every key.
-CACHE_VERSION = "tvrecon-data-2"
+CACHE_VERSION = "tvrecon-data-3"
 
 _KEY_FIELD = "__key__"
 _CHECKSUM_FIELD = "__checksum__"
