@@ -29,7 +29,8 @@ import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
-from tvrecon.tables import atomic_write_text, build_tables, format_tables, write_tables  # noqa: E402
+from tvrecon.atomic import atomic_write_text  # noqa: E402
+from tvrecon.tables import build_tables, format_tables, write_tables  # noqa: E402
 from tvrecon.viz import plot_loss_curves  # noqa: E402
 
 log = logging.getLogger("train")

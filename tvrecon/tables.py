@@ -31,12 +31,12 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from tvrecon.atomic import atomic_write_text
 
 RECON_TOUCHES: tuple[int, ...] = (2, 5, 10)
 CLS_TOUCHES: tuple[int, ...] = (1, 2, 4, 6, 8, 10)
@@ -294,30 +294,6 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
     if any(r["task"] == "classification" for r in results):
         tables["table2"] = build_table2(results)
     return tables
-
-
-def default_file_mode() -> int:
-    """``0o666`` minus the process umask: what ``open(path, "w")`` would give (mkstemp files are ``0o600``)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, default_file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]:

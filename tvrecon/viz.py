@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,25 +20,11 @@ import torch  # noqa: E402
 import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
-from tvrecon.tables import default_file_mode  # noqa: E402
+from tvrecon.atomic import atomic_savefig, atomic_write_text  # noqa: E402
 
 
 def _atomic_savefig(fig: plt.Figure, path: str | Path, dpi: int = 100) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.chmod(tmp, default_file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    finally:
-        plt.close(fig)
-    return path
+    return atomic_savefig(fig, path, dpi=dpi, bbox_inches="tight")
 
 
 def _np(x: torch.Tensor | np.ndarray) -> np.ndarray:
@@ -165,14 +149,7 @@ def export_obj(verts: torch.Tensor | np.ndarray, faces: torch.Tensor | np.ndarra
     path = Path(path)
     if path.suffix != ".obj":
         raise ValueError(f"export_obj writes .obj files, got path {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = trimesh.exchange.obj.export_obj(trimesh.Trimesh(v, f, process=False))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".obj", dir=path.parent)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.chmod(tmp, default_file_mode())
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, trimesh.exchange.obj.export_obj(trimesh.Trimesh(v, f, process=False)))
 
 
 def read_metrics_csv(path: str | Path) -> dict[str, list[tuple[float, float]]]:

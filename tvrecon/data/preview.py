@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -26,6 +24,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
+from tvrecon.atomic import atomic_savefig  # noqa: E402
 from tvrecon.data.render import Camera, project_points, render_view, sample_camera  # noqa: E402
 from tvrecon.data.touches import TouchPolicy, sample_touches, simulate_touches  # noqa: E402
 
@@ -34,21 +33,7 @@ __all__ = ["make_preview", "draw_preview", "save_figure_atomic", "main"]
 
 def save_figure_atomic(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     """Write `fig` as a PNG at `path` atomically (temp file in the same folder, then os.replace)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png", dpi=dpi, bbox_inches="tight", facecolor="white")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_savefig(fig, path, format="png", dpi=dpi, bbox_inches="tight", facecolor="white")
 
 
 def _grid(n: int) -> tuple[int, int]:

@@ -25,6 +25,7 @@ import torch
 import trimesh
 from tqdm.auto import tqdm
 
+from tvrecon.atomic import atomic_open
 from tvrecon.robot.finger import FingerReading, LazySimulator, PadConfig, TactileFinger, sense_fingers
 from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
 from tvrecon.robot.scene import (
@@ -138,10 +139,8 @@ def load_object_mesh(name_or_path: str, seed: int = 0) -> trimesh.Trimesh:
 
 
 def _atomic_savez(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
+    with atomic_open(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
-    os.replace(tmp, path)
 
 
 class _Controller:

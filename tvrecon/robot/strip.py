@@ -7,11 +7,12 @@ frames with contact framed green.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import imageio.v2 as imageio
 import matplotlib
+
+from tvrecon.atomic import atomic_open, atomic_savefig
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -98,9 +99,8 @@ def write_gif(log: dict, path: str | Path, fps: int = 15, every: int = 1) -> Pat
         raise ValueError("the log holds no frames: nothing to animate")
     vmax = _vmax(log)
     frames = [compose_frame(log, k, vmax) for k in range(0, len(log["frames"]), every)]
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    imageio.mimsave(tmp, frames, duration=1.0 / fps, loop=0)
-    os.replace(tmp, path)
+    with atomic_open(path, "wb") as fh:
+        imageio.mimsave(fh, frames, format="GIF", duration=1.0 / fps, loop=0)
     return path
 
 
@@ -142,8 +142,6 @@ def write_strip(log: dict, path: str | Path, frames: list[int] | None = None) ->
         fontsize=9,
     )
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    atomic_savefig(fig, path, format="png", dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
     return path

@@ -9,8 +9,6 @@ loses the interior visible through the opening, like a cup).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +17,8 @@ import torch
 import trimesh
 from scipy import ndimage
 from torch import Tensor
+
+from tvrecon.atomic import atomic_write_bytes
 
 __all__ = [
     "VoxelGrid",
@@ -269,19 +269,4 @@ def save_particles_ply(path: str | Path, x: Tensor | np.ndarray) -> Path:
     pts = x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"x must be (P, 3), got {pts.shape}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = trimesh.PointCloud(pts.astype(np.float64)).export(file_type="ply")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data if isinstance(data, bytes) else data.encode())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_bytes(path, trimesh.PointCloud(pts.astype(np.float64)).export(file_type="ply"))

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -12,6 +10,8 @@ import numpy as np
 import trimesh
 from PIL import Image, ImageDraw
 from tqdm import tqdm
+
+from tvrecon.atomic import atomic_open
 
 log = logging.getLogger(__name__)
 
@@ -71,17 +71,6 @@ def contact_sheet(
         if i == 0:
             draw.text((x0 + 4, y0 + 3), f"{k}: {cls}", fill="black")
             draw.rectangle([x0, y0, x0 + cell_w - 1, y0 + cell_h - 1], outline=(200, 200, 200))
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".png.tmp")
-    os.close(fd)
-    try:
-        sheet.save(tmp, format="PNG")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the figure the usual permissions
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out
+    with atomic_open(out, "wb") as fh:
+        sheet.save(fh, format="PNG")
+    return Path(out)
