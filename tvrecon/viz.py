@@ -24,7 +24,11 @@ from tvrecon.atomic import atomic_savefig, atomic_write_text  # noqa: E402
 
 
 def _atomic_savefig(fig: plt.Figure, path: str | Path, dpi: int = 100) -> Path:
-    return atomic_savefig(fig, path, dpi=dpi, bbox_inches="tight")
+    """Save ``fig`` atomically and close it (pyplot keeps every open figure alive)."""
+    try:
+        return atomic_savefig(fig, path, dpi=dpi, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def _np(x: torch.Tensor | np.ndarray) -> np.ndarray:

@@ -46,3 +46,17 @@ def test_render_and_export_roundtrip(tmp_path: Path) -> None:
         render_mesh_comparison(verts, faces, verts[:, :2], tmp_path / "bad.png")
     with pytest.raises(ValueError, match=r"\.obj"):
         export_obj(verts, faces, tmp_path / "box.ply")
+
+
+def test_renders_close_their_figures(tmp_path) -> None:
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from tvrecon.viz import render_mesh_comparison
+
+    verts = np.array([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0], [0.0, 0.1, 2.0], [0.0, 0.0, 2.1]])
+    faces = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
+    before = len(plt.get_fignums())
+    for k in range(3):
+        render_mesh_comparison(verts, faces, verts, tmp_path / f"r{k}.png")
+    assert len(plt.get_fignums()) == before
