@@ -15,6 +15,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from tvrecon.models.optim import configure_optimizers
+
 __all__ = ["ClassificationModule", "select_touches"]
 
 
@@ -161,8 +163,4 @@ class ClassificationModule(L.LightningModule):
         }
 
     def configure_optimizers(self) -> Any:
-        optimizer = self.optimizer_factory(params=self.trainer.model.parameters())
-        if self.scheduler_factory is None:
-            return {"optimizer": optimizer}
-        scheduler = self.scheduler_factory(optimizer=optimizer)
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}
+        return configure_optimizers(self.trainer.model.parameters(), self.optimizer_factory, self.scheduler_factory)

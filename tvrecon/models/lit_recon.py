@@ -33,6 +33,7 @@ from torch import Tensor, nn
 
 from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
+from tvrecon.models.optim import configure_optimizers
 from tvrecon.models.projection import world_to_camera
 from tvrecon.viz import export_obj, render_mesh_comparison
 
@@ -367,8 +368,4 @@ class ReconstructionModule(L.LightningModule):
         }
 
     def configure_optimizers(self) -> Any:
-        optimizer = self.optimizer_factory(params=self.trainer.model.parameters())
-        if self.scheduler_factory is None:
-            return {"optimizer": optimizer}
-        scheduler = self.scheduler_factory(optimizer=optimizer)
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}
+        return configure_optimizers(self.trainer.model.parameters(), self.optimizer_factory, self.scheduler_factory)
