@@ -160,7 +160,7 @@ def make_preview(
     pad: int = 64,
     n_grid: int = 128,
     cone_deg: float = 15.0,
-    fov_deg: float = 35.0,
+    fov_deg: float = 45.0,
     device: str = "cpu",
 ) -> Path:
     """Generate one sample (object, view, touches, tactile readings) and write its preview PNG to `out`.
@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pad", type=int, default=64, help="sensor resolution, pad x pad particles (default: 64)")
     p.add_argument("--n-grid", type=int, default=128, help="simulation grid cells across the domain (default: 128)")
     p.add_argument("--cone", type=float, default=15.0, help="press-direction cone half-angle, degrees")
-    p.add_argument("--fov", type=float, default=35.0, help="camera field of view, degrees (default: 35)")
+    p.add_argument("--fov", type=float, default=45.0, help="camera field of view, degrees (default: 45)")
     p.add_argument("--device", default="cpu", help="torch device of the simulation")
     a = p.parse_args(argv)
     path = make_preview(a.out, a.shape, a.touches, a.seed, a.image_size, a.pad, a.n_grid, a.cone, a.fov, a.device)
