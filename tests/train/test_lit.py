@@ -69,6 +69,19 @@ def test_keep_first_touches_keeps_first_valid_ones() -> None:
         keep_first_touches(mask.long(), 2)
 
 
+def test_keep_first_touches_per_sample_counts() -> None:
+    mask = torch.tensor([[True, False, True, True, False], [True, True, True, True, True]])
+    assert keep_first_touches(mask, torch.tensor([1, 3])).tolist() == [
+        [True, False, False, False, False],
+        [True, True, True, False, False],
+    ]
+    assert torch.equal(keep_first_touches(mask, torch.tensor([2, 2])), keep_first_touches(mask, 2))
+    with pytest.raises(ValueError, match=r"\(2,\) integer tensor"):
+        keep_first_touches(mask, torch.tensor([1.0, 2.0]))
+    with pytest.raises(ValueError, match="k must be >= 0"):
+        keep_first_touches(mask, torch.tensor([1, -1]))
+
+
 def test_select_touches_first_and_random() -> None:
     tactile = torch.arange(4.0)[None, :, None, None, None].expand(2, 4, 3, 2, 2).clone()
     mask = torch.tensor([[False, True, True, True], [True, True, False, True]])
@@ -126,8 +139,8 @@ def test_recon_fit_and_test_modes(tmp_path: Path, mode: str, expected: set[str])
 
 def test_recon_random_touch_count_in_range() -> None:
     model = ReconstructionModule(_net(), _optimizer, min_touches=3, max_touches=4)
-    counts = {model._touch_count() for _ in range(50)}
-    assert counts == {3, 4}
+    counts = model._touch_counts(200)
+    assert counts.shape == (200,) and set(counts.tolist()) == {3, 4}  # drawn per sample, both ends reached
     with pytest.raises(ValueError, match="min_touches <= max_touches"):
         ReconstructionModule(_net(), _optimizer, min_touches=5, max_touches=4)
 
