@@ -3,8 +3,9 @@
 Training: the ground-truth surface points and normals (world frame) are mapped to the camera frame with the
 view's RT, the number of touches is drawn per sample (k ~ U{min_touches..max_touches}, later touches masked out;
 the paper's "1 to 10 tactile images per iteration"; this is the only draw: the reconstruction data presets serve
-all ``max_touches`` cached touches, so training sees k uniform rather than the smaller min of two draws), and the Pixel2Mesh loss terms of every deformation stage are
-weighted by the ``loss_weights`` mapping and summed. Each term is logged (progress bar) as ``train/<term>``.
+all ``max_touches`` cached touches, so training sees k uniform rather than the smaller min of two draws), and the
+Pixel2Mesh loss terms of every deformation stage are weighted by the ``loss_weights`` mapping and summed.
+Each term is logged (progress bar) as ``train/<term>``.
 
 Validation logs ``val/loss`` and ``val/chamfer`` (the x1e-3 metric with every available touch) and renders the
 first validation sample (prediction vs ground truth) to ``<run>/renders/epoch_<n>.png`` each epoch.
@@ -80,7 +81,9 @@ def keep_first_touches(touch_mask: Tensor, k: int | Tensor) -> Tensor:
         raise ValueError(f"touch_mask must be a (B, T) bool tensor, got {tuple(touch_mask.shape)} {touch_mask.dtype}")
     if isinstance(k, Tensor):
         if k.shape != (touch_mask.shape[0],) or k.is_floating_point() or k.dtype == torch.bool:
-            raise ValueError(f"per-sample k must be a ({touch_mask.shape[0]},) integer tensor, got {tuple(k.shape)} {k.dtype}")
+            raise ValueError(
+                f"per-sample k must be a ({touch_mask.shape[0]},) integer tensor, got {tuple(k.shape)} {k.dtype}"
+            )
         if bool((k < 0).any()):
             raise ValueError(f"k must be >= 0, got {k.tolist()}")
         limit = k.to(touch_mask.device).unsqueeze(1)  # (B, 1)
@@ -210,7 +213,10 @@ class ReconstructionModule(L.LightningModule):
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
-        mask = None if self.modality == "visual" else keep_first_touches(batch["touch_mask"], self._touch_counts(len(batch["touch_mask"])))
+        mask = None
+        if self.modality != "visual":
+            counts = self._touch_counts(len(batch["touch_mask"]))
+            mask = keep_first_touches(batch["touch_mask"], counts)
         out = self(batch, mask)
         terms = self.compute_losses(out, points, normals)
         B = points.shape[0]
