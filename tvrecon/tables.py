@@ -302,3 +302,54 @@ def format_tables(tables: Mapping[str, Table]) -> str:
     order = ["table2", "table3", "table4"]
     keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
     return "\n".join(tables[k].to_markdown() for k in keys)
+
+
+def collect_results(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
+    """Load every ``metrics.json`` at or below ``paths`` (files or folders), in sorted path order.
+
+    Raises:
+        FileNotFoundError: a path does not exist, or no ``metrics.json`` was found at all.
+        ValueError: a file is not valid JSON (named, with the parse error).
+    """
+    import json
+
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if not p.exists():
+            raise FileNotFoundError(f"{p} does not exist (give run folders of train.py/eval.py or metrics.json files)")
+        files.extend([p] if p.is_file() else sorted(p.rglob("metrics.json")))
+    if not files:
+        raise FileNotFoundError(
+            f"no metrics.json below {[str(p) for p in paths]}: train.py (test=true) and eval.py write one per run"
+        )
+    results = []
+    for f in files:
+        try:
+            results.append(json.loads(f.read_text()))
+        except json.JSONDecodeError as err:
+            raise ValueError(f"{f} is not valid JSON ({err}); re-run eval.py on its checkpoint") from err
+    return results
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m tvrecon.tables DIR_OR_FILE... [--out DIR]``: the tables of runs already tested, no re-evaluation."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m tvrecon.tables", description=main.__doc__)
+    parser.add_argument("paths", nargs="+", help="run folders (searched recursively for metrics.json) or files")
+    parser.add_argument("--out", default=None, help="also write table{2,3,4}.{md,csv} and tables.md here")
+    args = parser.parse_args(argv)
+    try:
+        tables = build_tables(collect_results(args.paths))
+    except (FileNotFoundError, ValueError) as err:
+        parser.error(str(err))
+    if not tables:
+        parser.error("the metrics.json files hold no reconstruction or classification results")
+    print(format_tables(tables))
+    if args.out:
+        print(f"(tables written to {write_tables(tables, args.out)[0].parent})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -95,3 +95,35 @@ def test_bad_results_raise_clear_errors() -> None:
         build_table3([{"task": "reconstruction", "name": "x"}])
     with pytest.raises(ValueError, match="needs an 'accuracy' mapping"):
         build_table2([{"task": "classification", "name": "x"}])
+
+
+def test_cli_collects_metrics_of_run_folders(tmp_path, capsys) -> None:
+    import json
+
+    from tvrecon.tables import collect_results, main
+
+    for i, res in enumerate([FULL, VIS, TAC]):
+        run = tmp_path / "sweep" / f"{i}_{res['name']}"
+        run.mkdir(parents=True)
+        (run / "metrics.json").write_text(json.dumps(res))
+    assert [r["name"] for r in collect_results([tmp_path / "sweep"])] == ["full", "visual_only", "tactile_only"]
+    assert main([str(tmp_path / "sweep"), "--out", str(tmp_path / "tables")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(format_tables(build_tables([FULL, VIS, TAC])))
+    assert "13.50" in out and "15.65" in out and "5.32" in out
+    assert (tmp_path / "tables" / "table3.csv").is_file()
+
+
+def test_cli_errors_name_the_problem(tmp_path, capsys) -> None:
+    from tvrecon.tables import main
+
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "missing")])
+    assert "does not exist" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([str(tmp_path)])
+    assert "no metrics.json" in capsys.readouterr().err
+    (tmp_path / "metrics.json").write_text('{"task": "reconst')
+    with pytest.raises(SystemExit):
+        main([str(tmp_path)])
+    assert "is not valid JSON" in capsys.readouterr().err
