@@ -79,6 +79,7 @@ class PickPlaceConfig:
     render_target: tuple[float, float, float] = (0.47, 0.0, 0.69)
     out_dir: str = "outputs/robot"
     write_gif: bool = True
+    write_mp4: bool = True  # needs imageio-ffmpeg ([robot] extra); skipped with a warning when missing
     write_strip: bool = True
     progress: bool = True
     torch_threads: int | None = 1  # small EIP presses run fastest single-threaded; None keeps torch's setting
@@ -119,6 +120,7 @@ class PickPlaceResult:
     strip_path: Path | None
     wall_time: float
     num_presses: int
+    mp4_path: Path | None = None
 
 
 def load_object_mesh(name_or_path: str, seed: int = 0) -> trimesh.Trimesh:
@@ -357,19 +359,34 @@ def _run(cfg: PickPlaceConfig, simulator: object | None, t0: float) -> PickPlace
         log = _collect_log(ctl, scene, plan, success, message, reached, cfg)
         log_path = out / "pick_place_log.npz"
         _atomic_savez(log_path, log)
-        gif_path = strip_path = None
-        if ctl.records and cfg.render and (cfg.write_gif or cfg.write_strip):
-            from tvrecon.robot.strip import write_gif, write_strip
+        gif_path = mp4_path = strip_path = None
+        if ctl.records and cfg.render and (cfg.write_gif or cfg.write_mp4 or cfg.write_strip):
+            from tvrecon.robot.strip import write_gif, write_mp4, write_strip
 
             if cfg.write_gif:
                 gif_path = write_gif(log, out / "pick_place.gif")
+            if cfg.write_mp4:
+                try:
+                    mp4_path = write_mp4(log, out / "pick_place.mp4")
+                except ImportError as err:
+                    tqdm.write(f"warning: no MP4 written: {err}")
             if cfg.write_strip:
                 strip_path = write_strip(log, out / "pick_place_strip.png")
         presses = sum(f.num_presses for f in fingers)
     finally:
         scene.close()
     return PickPlaceResult(
-        success, message, reached, plan, log, log_path, gif_path, strip_path, time.perf_counter() - t0, presses
+        success,
+        message,
+        reached,
+        plan,
+        log,
+        log_path,
+        gif_path,
+        strip_path,
+        time.perf_counter() - t0,
+        presses,
+        mp4_path,
     )
 
 
@@ -501,7 +518,7 @@ def _hydra_entry() -> None:
         res = run_pick_place(cfg)
         status = "OK" if res.success else "FAILED"
         print(f"[{status}] {res.message}")
-        print(f"log: {res.log_path}\ngif: {res.gif_path}\nstrip: {res.strip_path}")
+        print(f"log: {res.log_path}\ngif: {res.gif_path}\nmp4: {res.mp4_path}\nstrip: {res.strip_path}")
         print(f"wall time {res.wall_time:.1f} s, {res.num_presses} EIP presses, {len(res.log.get('step', []))} frames")
 
     _main()

@@ -1,4 +1,4 @@
-"""Figures of a pick-and-place run: an animated GIF and a PNG strip like the paper's robot figure.
+"""Figures of a pick-and-place run: an animated GIF, an MP4 video and a PNG strip like the paper's robot figure.
 
 Both read the run's log dict (``pick_place_log.npz``): scene frames (K,Hs,Ws,3) uint8 on top, each finger's tactile
 image below (normal displacement channel, one colour scale for the whole run), frames without contact framed red,
@@ -7,6 +7,7 @@ frames with contact framed green.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import imageio.v2 as imageio
@@ -19,7 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from PIL import Image, ImageDraw  # noqa: E402
 
-__all__ = ["tactile_to_rgb", "key_frames", "compose_frame", "write_gif", "write_strip"]
+__all__ = ["tactile_to_rgb", "key_frames", "compose_frame", "write_gif", "write_mp4", "write_strip"]
 
 GREEN = (40, 200, 70)
 RED = (220, 40, 40)
@@ -82,6 +83,7 @@ def compose_frame(log: dict, k: int, vmax: float | None = None, tactile_size: in
         t = tactile_to_rgb(log["tactile"][k, f], vmax, ts)
         tiles.append(_border(t, GREEN if bool(log["contact"][k, f]) else RED))
     right = np.concatenate(tiles, axis=0)[:Hs]
+    right = np.pad(right, ((0, Hs - right.shape[0]), (0, 0), (0, 0)))  # odd scene heights: a black row below
     out = np.concatenate([frame, right], axis=1)
     im = Image.fromarray(out)
     d = ImageDraw.Draw(im)
@@ -92,15 +94,51 @@ def compose_frame(log: dict, k: int, vmax: float | None = None, tactile_size: in
     return np.asarray(im)
 
 
-def write_gif(log: dict, path: str | Path, fps: int = 15, every: int = 1) -> Path:
-    """Write the run as an animated GIF (atomic). Returns the path."""
-    path = Path(path)
+def _compose_all(log: dict, every: int) -> list[np.ndarray]:
     if len(log["frames"]) == 0:
         raise ValueError("the log holds no frames: nothing to animate")
     vmax = _vmax(log)
-    frames = [compose_frame(log, k, vmax) for k in range(0, len(log["frames"]), every)]
+    return [compose_frame(log, k, vmax) for k in range(0, len(log["frames"]), every)]
+
+
+def write_gif(log: dict, path: str | Path, fps: int = 15, every: int = 1) -> Path:
+    """Write the run as an animated GIF (atomic). Returns the path."""
+    path = Path(path)
+    frames = _compose_all(log, every)
     with atomic_open(path, "wb") as fh:
         imageio.mimsave(fh, frames, format="GIF", duration=1.0 / fps, loop=0)
+    return path
+
+
+def write_mp4(log: dict, path: str | Path, fps: int = 15, every: int = 1) -> Path:
+    """Write the run as an H.264 MP4 (atomic: a temporary file next to ``path``, renamed when complete).
+
+    Needs the ``imageio-ffmpeg`` package (in the ``[robot]`` extra), which ships its own ffmpeg binary.
+
+    Raises:
+        ImportError: imageio-ffmpeg is not installed (the message says how to install it).
+        ValueError: the log holds no frames.
+    """
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError as err:
+        raise ImportError(
+            "MP4 output needs imageio-ffmpeg: pip install imageio-ffmpeg (or the [robot] extra); "
+            "the GIF and the strip do not need it"
+        ) from err
+    path = Path(path)
+    frames = _compose_all(log, every)
+    h, w = frames[0].shape[:2]
+    # H.264 with yuv420p needs even sizes: pad by one black row/column where needed instead of resampling
+    pad = ((0, h % 2), (0, w % 2), (0, 0))
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", macro_block_size=1) as writer:
+            for frame in frames:
+                writer.append_data(np.pad(frame, pad))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 
