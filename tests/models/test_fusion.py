@@ -117,8 +117,8 @@ def _fusion_inputs(n_touch_visible: bool = True):
 
 
 def test_dense_and_single_stage_fusion() -> None:
-    dense = TactileVisualFusion()
-    single = TactileVisualFusion(single_stage=True)
+    dense = TactileVisualFusion(zero_init=False)
+    single = TactileVisualFusion(single_stage=True, zero_init=False)
     assert len(dense.aggs) == 16 and len(single.aggs) == 4
     assert sorted(single.pairs) == [(0, 0), (1, 1), (2, 2), (3, 3)]
     placement, tactile = _fusion_inputs()
@@ -136,7 +136,7 @@ def test_dense_and_single_stage_fusion() -> None:
 
 
 def test_no_gap_fuses_whole_map_and_no_direction() -> None:
-    fusion = TactileVisualFusion(use_gap=False, use_direction=False).eval()
+    fusion = TactileVisualFusion(use_gap=False, use_direction=False, zero_init=False).eval()
     assert fusion.direction_ffn is None and fusion.embed_directions(torch.randn(1, 3)) is None
     placement, tactile = _fusion_inputs()
     visual = torch.randn(2, 64, h, w)

@@ -75,7 +75,7 @@ def test_modes() -> None:
     with pytest.raises(ValueError, match="tactile_only"):
         tactile(b["image"], b["K"], b["RT"])
 
-    fusion = small_net().eval()
+    fusion = small_net(zero_init=False).eval()  # non-zero Agg scales: touches change the output
     no_touch = fusion(b["image"], b["K"], b["RT"])
     masked = run(fusion, b, touch_mask=torch.zeros(2, 3, dtype=torch.bool))
     touched = run(fusion, b)
@@ -95,23 +95,77 @@ def test_modes() -> None:
         run(fusion, b, positions=torch.rand(2, 3))
 
 
-def test_gradients_reach_both_branches_and_direction_ffn() -> None:
-    net = small_net().train()
-    b = batch()
+def _grad_norm(module: torch.nn.Module) -> float:
+    return sum(p.grad.abs().sum().item() for p in module.parameters() if p.grad is not None)
+
+
+def _backward(net: TactileVisualReconstructor, b: dict) -> None:
+    net.zero_grad()
     out = run(net, b)
-    gt = torch.rand(2, 50, 3) + torch.tensor([0.0, 0.0, 1.5])
-    terms = mesh_loss_terms(out, gt, torch.nn.functional.normalize(torch.randn(2, 50, 3), dim=-1))
+    gt = torch.rand(2, 50, 3, generator=torch.Generator().manual_seed(3)) + torch.tensor([0.0, 0.0, 1.5])
+    terms = mesh_loss_terms(out, gt, torch.nn.functional.normalize(torch.ones(2, 50, 3), dim=-1))
     terms["loss"].backward()
 
-    def grad_norm(module: torch.nn.Module) -> float:
-        return sum(p.grad.abs().sum().item() for p in module.parameters() if p.grad is not None)
 
-    assert grad_norm(net.visual.stem) > 0
-    assert grad_norm(net.tactile.stem) > 0
-    assert grad_norm(net.tactile.stages[3]) > 0
-    assert grad_norm(net.fusion.direction_ffn) > 0
-    assert all(grad_norm(agg) > 0 for agg in net.fusion.aggs.values())
-    assert grad_norm(net.deformer) > 0
+def test_gradients_reach_both_branches_and_direction_ffn() -> None:
+    torch.manual_seed(0)
+    net = small_net().train()
+    b = batch()
+    _backward(net, b)
+    # zero-initialised Agg scales: at the start only those scales (and the visual path) get a gradient
+    assert _grad_norm(net.visual.stem) > 0 and _grad_norm(net.deformer) > 0
+    assert all(agg.net[-1].weight.grad.abs().sum() > 0 for agg in net.fusion.aggs.values())
+    assert _grad_norm(net.tactile) == 0 and _grad_norm(net.fusion.direction_ffn) == 0
+    # one optimizer step opens every path: the tactile branch, the direction FFN and every Agg block
+    torch.optim.SGD(net.parameters(), lr=0.1).step()
+    _backward(net, b)
+    assert _grad_norm(net.tactile.stem) > 0
+    assert _grad_norm(net.tactile.stages[3]) > 0
+    assert _grad_norm(net.fusion.direction_ffn) > 0
+    assert all(_grad_norm(agg.net[0]) > 0 for agg in net.fusion.aggs.values())
+
+
+def test_gradients_flow_everywhere_without_zero_init() -> None:
+    net = small_net(zero_init=False).train()
+    _backward(net, batch())
+    assert _grad_norm(net.tactile.stem) > 0 and _grad_norm(net.fusion.direction_ffn) > 0
+    assert all(_grad_norm(agg) > 0 for agg in net.fusion.aggs.values())
+
+
+def test_untrained_fusion_model_equals_its_visual_path() -> None:
+    """Zero-init Agg blocks: the touches change nothing until training gives them weight."""
+    net = small_net().eval()
+    b = batch()
+    with torch.no_grad():
+        with_touches = run(net, b)["verts"][-1]
+        without = run(net, b, tactile=None)["verts"][-1]
+        assert torch.allclose(with_touches, without, atol=1e-6)  # adds exact zeros; kernels may round differently
+        net_plain = small_net(zero_init=False).eval()
+        net_plain.load_state_dict(net.state_dict(), strict=False)
+        for agg in net_plain.fusion.aggs.values():
+            torch.nn.init.ones_(agg.net[-1].weight)
+        assert not torch.allclose(run(net_plain, b)["verts"][-1], without)
+
+
+def test_directions_enter_in_the_camera_frame() -> None:
+    """Rotating the world (view, touches and directions together) leaves the camera-frame prediction unchanged."""
+    torch.manual_seed(0)
+    net = small_net().eval()
+    for agg in net.fusion.aggs.values():
+        torch.nn.init.ones_(agg.net[-1].weight)
+    b = batch()
+    angle = torch.tensor(0.7)
+    c, s = torch.cos(angle), torch.sin(angle)
+    Q = torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # world rotation about z
+    rotated = dict(b)
+    rotated["positions"] = b["positions"] @ Q.T
+    rotated["directions"] = b["directions"] @ Q.T
+    R, t = b["RT"][:, :, :3], b["RT"][:, :, 3:]
+    rotated["RT"] = torch.cat([R @ Q.T, t], dim=2)  # same camera relative to the rotated world
+    with torch.no_grad():
+        a = run(net, b)["verts"][-1]
+        r = run(net, rotated)["verts"][-1]
+    assert torch.allclose(a, r, atol=1e-5)
 
 
 @pytest.mark.slow
