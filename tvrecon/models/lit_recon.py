@@ -35,7 +35,7 @@ from torch import Tensor, nn
 
 from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
-from tvrecon.models.optim import configure_optimizers
+from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
 from tvrecon.models.projection import world_to_camera
 from tvrecon.viz import export_obj, render_mesh_comparison
 
@@ -117,6 +117,7 @@ class ReconstructionModule(L.LightningModule):
         export: write one ``.obj`` and one render per class and mode at test time.
         render_every_n_epochs: period of the validation render (0 disables it).
         output_dir: folder for renders and meshes (None = the trainer's ``default_root_dir``).
+        lr_scales: parameter name prefix -> learning-rate factor (e.g. ``{"net.fusion": 10}``); None = one lr.
     """
 
     def __init__(
@@ -139,6 +140,7 @@ class ReconstructionModule(L.LightningModule):
         export: bool = True,
         render_every_n_epochs: int = 1,
         output_dir: str | None = None,
+        lr_scales: Mapping[str, float] | None = None,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -384,4 +386,10 @@ class ReconstructionModule(L.LightningModule):
         }
 
     def configure_optimizers(self) -> Any:
-        return configure_optimizers(self.trainer.model.parameters(), self.optimizer_factory, self.scheduler_factory)
+        scales = self.hparams.get("lr_scales")
+        params = (
+            lr_scaled_groups(self.named_parameters(), self.optimizer_factory, scales)
+            if scales
+            else self.trainer.model.parameters()
+        )
+        return configure_optimizers(params, self.optimizer_factory, self.scheduler_factory)
