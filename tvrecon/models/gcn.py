@@ -1,7 +1,9 @@
 """Pixel2Mesh graph deformer (paper eq. 14-16).
 
-* ``GraphConv``: ``f_v' = W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (eq. 15-16), neighbour sums with ``index_add``;
-  by default degree-normalised (mean over neighbours, see ``GraphConv``).
+* ``GraphConv``: ``f_v' = W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (eq. 15-16), by default degree-normalised (mean
+  over neighbours, see ``GraphConv``). The neighbour sum is one product with a sparse CSR matrix, block-diagonal
+  over the batch (``neighbour_matrix``, built once per mesh level by ``MeshDeformer``), instead of gathering both
+  ends of every edge and ``index_add`` (``benchmarks/reference_gcn.py``; speed in ``benchmarks/bench_train_step.py``).
 * ``GResBlock``: two graph convs with ReLU and a residual connection, ``(x + conv2(relu(conv1(x)))) / 2`` as in
   Pixel2Mesh.
 * ``PerceptualPooling``: vertices (camera frame) are projected with K (kornia) and each visual stage is sampled
@@ -18,6 +20,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import torch
@@ -27,7 +30,64 @@ from torch import Tensor, nn
 from tvrecon.models.ellipsoid import EllipsoidTemplate, unpool_features
 from tvrecon.models.projection import camera_to_pixel, pixel_to_grid
 
-__all__ = ["DeformationBlock", "GResBlock", "GraphConv", "MeshDeformer", "PerceptualPooling"]
+__all__ = ["DeformationBlock", "GResBlock", "GraphConv", "MeshDeformer", "PerceptualPooling", "neighbour_matrix"]
+
+_AGGREGATES = ("mean", "sum")
+
+
+def neighbour_matrix(edges: Tensor, num_vertices: int, aggregate: str = "mean", batch_size: int = 1) -> Tensor:
+    """The neighbour operator of a mesh graph as a sparse matrix, block-diagonal over a batch of meshes.
+
+    Args:
+        edges: (E, 2) int64 undirected edges (each listed once; a repeated edge counts twice, as in a loop).
+        num_vertices: V.
+        aggregate: ``"sum"`` (entry 1 per neighbour) or ``"mean"`` (entry 1 / degree).
+        batch_size: B, the number of copies of the mesh (one diagonal block each).
+
+    Returns:
+        (B*V, B*V) float32 sparse CSR matrix ``A`` on ``edges.device``: for features h (B, V, C),
+        ``(A @ h.reshape(B*V, C)).reshape(B, V, C)[b, v]`` is the sum or mean of ``h[b]`` over the neighbours of v
+        (zero for an isolated vertex).
+    """
+    if aggregate not in _AGGREGATES:
+        raise ValueError(f"aggregate must be 'mean' or 'sum', got {aggregate!r}")
+    if edges.dim() != 2 or edges.shape[1] != 2:
+        raise ValueError(f"edges must have shape (E, 2), got {tuple(edges.shape)}")
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if edges.numel() and (int(edges.min()) < 0 or int(edges.max()) >= num_vertices):
+        raise ValueError(
+            f"edges must index vertices in [0, {num_vertices}), got [{int(edges.min())}, {int(edges.max())}]"
+        )
+    src = torch.cat([edges[:, 0], edges[:, 1]]).long()  # (2E,)
+    dst = torch.cat([edges[:, 1], edges[:, 0]]).long()
+    values = torch.ones(src.shape[0], dtype=torch.float32, device=edges.device)
+    if aggregate == "mean":
+        deg = torch.zeros(num_vertices, dtype=torch.float32, device=edges.device).index_add(0, dst, values)
+        values = values / deg[dst]
+    offset = (torch.arange(batch_size, device=edges.device) * num_vertices)[:, None]  # (B, 1)
+    rows, cols = (dst[None] + offset).flatten(), (src[None] + offset).flatten()  # (B*2E,)
+    n = batch_size * num_vertices
+    coo = torch.sparse_coo_tensor(
+        torch.stack([rows, cols]), values.repeat(batch_size), (n, n), check_invariants=False
+    ).coalesce()  # repeated entries are summed
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        return coo.to_sparse_csr()
+
+
+def _aggregate(matrix: Tensor, h: Tensor) -> Tensor:
+    """Neighbour sums: matrix (B*V, B*V) sparse from ``neighbour_matrix``, h (B, V, C) float -> (B, V, C) float.
+
+    Computed in at least float32 (float64 stays float64) outside autocast: sparse products under mixed precision are
+    not supported on every device. The result has h's dtype.
+    """
+    B, V, C = h.shape
+    dtype = torch.promote_types(h.dtype, torch.float32)
+    with torch.autocast(device_type=h.device.type, enabled=False):
+        m = matrix if matrix.dtype == dtype else matrix.to(dtype)
+        out = (m @ h.to(dtype).reshape(B * V, C)).reshape(B, V, C)
+    return out.to(h.dtype)
 
 
 class GraphConv(nn.Module):
@@ -45,28 +105,31 @@ class GraphConv(nn.Module):
 
     def __init__(self, in_features: int, out_features: int, aggregate: str = "mean") -> None:
         super().__init__()
-        if aggregate not in ("mean", "sum"):
+        if aggregate not in _AGGREGATES:
             raise ValueError(f"aggregate must be 'mean' or 'sum', got {aggregate!r}")
         self.aggregate = aggregate
         self.self_linear = nn.Linear(in_features, out_features)  # W0 (+ bias)
         self.neighbour_linear = nn.Linear(in_features, out_features, bias=False)  # W1
 
-    def forward(self, x: Tensor, edges: Tensor) -> Tensor:
-        """Args: x (B, V, C_in) float; edges (E, 2) int64 undirected. Returns (B, V, C_out) float."""
+    def forward(self, x: Tensor, edges: Tensor, neighbours: Tensor | None = None) -> Tensor:
+        """Args: x (B, V, C_in) float; edges (E, 2) int64 undirected; neighbours: optional (B*V, B*V) sparse
+        ``neighbour_matrix(edges, V, self.aggregate, B)`` built by the caller once for many convs (None = build it).
+
+        Returns (B, V, C_out) float.
+        """
         if x.dim() != 3:
             raise ValueError(f"x must have shape (B, V, C), got {tuple(x.shape)}")
         if edges.dim() != 2 or edges.shape[1] != 2:
             raise ValueError(f"edges must have shape (E, 2), got {tuple(edges.shape)}")
-        h = self.neighbour_linear(x)  # (B, V, C_out)
-        src = torch.cat([edges[:, 0], edges[:, 1]])
-        dst = torch.cat([edges[:, 1], edges[:, 0]])
-        agg = torch.zeros_like(h).index_add(1, dst, h[:, src])  # sum over neighbours
-        if self.aggregate == "mean":
-            deg = torch.zeros(x.shape[1], dtype=h.dtype, device=h.device).index_add(
-                0, dst, torch.ones_like(h[0, src, 0])
+        B, V = x.shape[:2]
+        if neighbours is None:
+            neighbours = neighbour_matrix(edges, V, self.aggregate, B)
+        elif neighbours.shape != (B * V, B * V):
+            raise ValueError(
+                f"neighbours must have shape (B*V, B*V) = ({B * V}, {B * V}), got {tuple(neighbours.shape)}"
             )
-            agg = agg / deg.clamp(min=1)[None, :, None]
-        return self.self_linear(x) + agg
+        h = self.neighbour_linear(x)  # (B, V, C_out)
+        return self.self_linear(x) + _aggregate(neighbours, h)
 
 
 class GResBlock(nn.Module):
@@ -77,10 +140,15 @@ class GResBlock(nn.Module):
         self.conv1 = GraphConv(features, features, aggregate)
         self.conv2 = GraphConv(features, features, aggregate)
 
-    def forward(self, x: Tensor, edges: Tensor) -> Tensor:
-        """Args: x (B, V, C) float; edges (E, 2) int64. Returns (B, V, C) float."""
-        h = F.relu(self.conv1(x, edges))
-        h = self.conv2(h, edges)
+    def forward(self, x: Tensor, edges: Tensor, neighbours: Tensor | None = None) -> Tensor:
+        """Args: x (B, V, C) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse or None (see ``GraphConv``).
+
+        Returns (B, V, C) float.
+        """
+        if neighbours is None:
+            neighbours = neighbour_matrix(edges, x.shape[1], self.conv1.aggregate, x.shape[0])
+        h = F.relu(self.conv1(x, edges, neighbours))
+        h = self.conv2(h, edges, neighbours)
         return F.relu((x + h) * 0.5)
 
 
@@ -128,15 +196,20 @@ class DeformationBlock(nn.Module):
             self.conv_out.self_linear.bias.zero_()
             self.conv_out.neighbour_linear.weight.mul_(0.01)
 
-    def forward(self, g: Tensor, verts: Tensor, edges: Tensor) -> tuple[Tensor, Tensor]:
-        """Args: g (B, V, C_in) float; verts (B, V, 3) float; edges (E, 2) int64.
+    def forward(
+        self, g: Tensor, verts: Tensor, edges: Tensor, neighbours: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """Args: g (B, V, C_in) float; verts (B, V, 3) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse or
+        None (see ``GraphConv``).
 
         Returns: new vertices (B, V, 3) float and hidden features (B, V, hidden) float.
         """
-        h = F.relu(self.conv_in(g, edges))
+        if neighbours is None:
+            neighbours = neighbour_matrix(edges, verts.shape[1], self.conv_in.aggregate, verts.shape[0])
+        h = F.relu(self.conv_in(g, edges, neighbours))
         for block in self.blocks:
-            h = block(h, edges)
-        return verts + self.conv_out(h, edges), h
+            h = block(h, edges, neighbours)
+        return verts + self.conv_out(h, edges, neighbours), h
 
 
 class MeshDeformer(nn.Module):
@@ -167,6 +240,7 @@ class MeshDeformer(nn.Module):
         self.template = EllipsoidTemplate(num_stages, radii, distance, rings, segments)
         self.pool = PerceptualPooling()
         self.num_stages = num_stages
+        self.aggregate = aggregate
         perceptual = int(sum(feature_channels))
         self.stages = nn.ModuleList(
             [
@@ -201,7 +275,8 @@ class MeshDeformer(nn.Module):
             pooled = self.pool(x, K, features, image_size)  # (B, V_s, sum C)
             parts = [x, pooled] if hidden is None else [hidden, x, pooled]
             g = torch.cat(parts, dim=-1)  # eq. 14
-            new_x, hidden = block(g, x, edges)
+            neighbours = neighbour_matrix(edges, x.shape[1], self.aggregate, B)  # one operator for the level's convs
+            new_x, hidden = block(g, x, edges, neighbours)
             out["verts_before"].append(x)
             out["verts"].append(new_x)
             out["faces"].append(self.template.faces(s))
