@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from tvrecon.losses.chamfer import ChamferDistance, chamfer_distance, chamfer_terms
+from tvrecon.losses.chamfer import ChamferDistance, chamfer_distance, chamfer_terms, nearest_neighbors
 
 
 def naive_chamfer(x: torch.Tensor, y: torch.Tensor) -> tuple[float, list[int], list[int]]:
@@ -67,3 +67,24 @@ def test_chamfer_validates_input() -> None:
         chamfer_distance(torch.rand(1, 5, 3), torch.rand(1, 5, 3), reduction="max")
     with pytest.raises(ValueError, match="batch size"):
         chamfer_distance(torch.rand(2, 5, 3), torch.rand(1, 5, 3))
+
+
+def test_nearest_neighbors_far_from_origin_and_chunked() -> None:
+    """Clouds at camera distance (z ~ 2) and several chunks: same neighbours as a float64 brute force (no near-ties
+    in these random clouds), distances to float32 round-off."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 300, 3, generator=g) * 0.3 + torch.tensor([0.1, -0.2, 2.0])
+    y = torch.randn(2, 200, 3, generator=g) * 0.3 + torch.tensor([0.1, -0.2, 2.0])
+    dist, idx = nearest_neighbors(x, y, chunk=64)
+    exact = torch.cdist(x.double(), y.double()).square()  # (2, 300, 200)
+    best = exact.min(-1)
+    gap = exact.topk(2, dim=-1, largest=False).values.diff(dim=-1)[..., 0]  # distance to the runner-up
+    clear = gap > 1e-5
+    assert clear.float().mean() > 0.95
+    assert torch.equal(idx[clear], best.indices[clear])
+    assert torch.allclose(dist.double(), best.values, atol=1e-6)
+    mask = torch.ones(2, 200, dtype=torch.bool)
+    mask[:, best.indices[0, 0]] = False  # hide x[0, 0]'s nearest point: the runner-up is chosen
+    _, idx_m = nearest_neighbors(x, y, mask)
+    assert idx_m[0, 0].item() == exact[0, 0].topk(2, largest=False).indices[1].item()
+    assert bool(mask.gather(1, idx_m).all())

@@ -64,12 +64,19 @@ def nearest_neighbors(x: Tensor, y: Tensor, y_mask: Tensor | None = None, chunk:
     if chunk is None:
         chunk = max(1, (1 << 25) // max(1, x.shape[0] * y.shape[1]))
     with torch.no_grad():
-        idx = []
-        for start in range(0, x.shape[1], chunk):
-            d = torch.cdist(x[:, start : start + chunk].detach(), y.detach()).square()  # (B, n, M)
-            if y_mask is not None:
-                d = d.masked_fill(~y_mask[:, None, :], float("inf"))
-            idx.append(d.argmin(dim=2))
+        # argmin_j |x_i - y_j|^2 = argmin_j (|y_j|^2 - 2 x_i . y_j): one batched matmul per chunk and no sqrt/square
+        # passes over the (B, n, M) block (torch.cdist expands the same way for large clouds). Both clouds are first
+        # centred on y's mean, which keeps the expansion's cancellation small for clouds far from the origin.
+        centre = y.detach().mean(dim=1, keepdim=True)  # (B, 1, 3)
+        xc, yc = x.detach() - centre, y.detach() - centre
+        y_sq = yc.square().sum(-1)[:, None, :]  # (B, 1, M)
+        if y_mask is not None:
+            y_sq = y_sq.masked_fill(~y_mask[:, None, :], float("inf"))
+        yt = yc.transpose(1, 2)  # (B, 3, M)
+        idx = [
+            torch.baddbmm(y_sq, xc[:, start : start + chunk], yt, alpha=-2.0).argmin(dim=2)
+            for start in range(0, x.shape[1], chunk)
+        ]  # each (B, n)
         idx_t = torch.cat(idx, dim=1) if idx else torch.zeros(x.shape[:2], dtype=torch.long, device=x.device)
     nearest = torch.gather(y, 1, idx_t[..., None].expand(-1, -1, 3))  # (B, N, 3)
     return (x - nearest).square().sum(-1), idx_t
