@@ -60,3 +60,26 @@ def test_renders_close_their_figures(tmp_path) -> None:
     for k in range(3):
         render_mesh_comparison(verts, faces, verts, tmp_path / f"r{k}.png")
     assert len(plt.get_fignums()) == before
+
+
+def test_run_comparison_overlays_runs(tmp_path: Path, capsys) -> None:
+    from tvrecon.viz import find_metrics_csv, main, plot_run_comparison
+
+    for name, scale in (("a", 1.0), ("b", 2.0)):
+        (tmp_path / name / "csv").mkdir(parents=True)
+        (tmp_path / name / "csv" / "metrics.csv").write_text(
+            "epoch,step,train/loss,val/chamfer\n"
+            f"0,0,{scale},\n0,14,,{30 * scale}\n1,15,{scale / 2},\n1,29,,{20 * scale}\n"
+        )
+    assert find_metrics_csv(tmp_path / "a") == tmp_path / "a" / "csv" / "metrics.csv"
+    out = plot_run_comparison({"a": tmp_path / "a", "b": tmp_path / "b" / "csv" / "metrics.csv"}, tmp_path / "c.png")
+    assert out.is_file() and out.stat().st_size > 1000
+    with pytest.raises(ValueError, match="no run logged 'val/fscore'"):
+        plot_run_comparison({"a": tmp_path / "a"}, tmp_path / "x.png", ["val/fscore"])
+    with pytest.raises(ValueError, match="no metrics.csv below"):
+        find_metrics_csv(tmp_path / "missing")
+    assert main(["compare", f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}", "--out", str(tmp_path / "d.png")]) == 0
+    assert (tmp_path / "d.png").is_file() and "wrote" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["compare", str(tmp_path / "a"), "--out", str(tmp_path / "e.png")])  # no LABEL=
+    assert "LABEL=RUN_DIR" in capsys.readouterr().err
