@@ -53,6 +53,7 @@ PRETTY_NAMES: dict[str, str] = {
     "region_1x1": "1x1 per-pixel fusion",
     "region_5x5": "5x5 per-pixel fusion",
     "single_stage": "Single-stage fusion",
+    "touch_depth": "Ours + touch depth (extension)",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
 }
@@ -66,6 +67,7 @@ ROW_ORDER: tuple[str, ...] = (
     "region_1x1",
     "region_5x5",
     "single_stage",
+    "touch_depth",
     "smoke",
 )
 VISUAL_FOOTNOTE = "* fusion model evaluated with every touch masked out (no tactile input)."

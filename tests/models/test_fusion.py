@@ -151,3 +151,26 @@ def test_fusion_validates() -> None:
     placement, tactile = _fusion_inputs()
     with pytest.raises(ValueError, match=r"\(B, 64, h, w\)"):
         TactileVisualFusion()(0, torch.randn(2, 32, h, w), tactile, None, placement, (H, W))
+
+
+def test_touch_depth_extension() -> None:
+    """locate_touches reports camera depth; with touch_depth the FFN reads it (same direction, other depth -> other
+    embedding), without it depth is ignored; touch_depth needs the direction FFN."""
+    K, RT = camera(1)
+    near = world_point_for_feature_pixel(3, 3)
+    far = [near[0] * 1.5, near[1] * 1.5, 1.0]  # same pixel, one unit farther (camera at z = -2 looks along +z)
+    placement = locate_touches(torch.tensor([[near, far]]), K, RT, (H, W))
+    assert torch.allclose(placement.depth, torch.tensor([2.0, 3.0]))
+    assert torch.equal(placement.uv[0], placement.uv[1])
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    with_depth = TactileVisualFusion(touch_depth=True)
+    emb = with_depth.embed_directions(dirs, placement.depth)
+    assert emb.shape == (2, 512) and not torch.allclose(emb[0], emb[1])
+    emb.sum().backward()
+    assert with_depth.direction_ffn.net[0].weight.grad[:, 3].abs().sum() > 0  # the depth column learns
+    plain = TactileVisualFusion()
+    assert torch.equal(*plain.embed_directions(dirs, placement.depth))
+    with pytest.raises(ValueError, match=r"with_depth needs depth of shape \(N,\) = \(2,\)"):
+        with_depth.embed_directions(dirs)
+    with pytest.raises(ValueError, match="needs use_direction=True"):
+        TactileVisualFusion(use_direction=False, touch_depth=True)

@@ -41,6 +41,7 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
     assert fusion.use_direction == (experiment != "no_direction")
     assert fusion.region == {"region_1x1": 1, "region_5x5": 5}.get(experiment, 3)
     assert len(fusion.pairs) == (4 if experiment == "single_stage" else 16)
+    assert fusion.touch_depth == (experiment == "touch_depth")
 
 
 def test_paper_preset_optimizer_and_schedule(tmp_path: Path) -> None:

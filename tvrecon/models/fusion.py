@@ -23,6 +23,12 @@ baseline on train and test (test chamfer 18.6 with 2 touches, 22.4 with 10, visu
 **Directions in the camera frame**: the mesh is predicted in the camera frame and the network never sees the
 camera pose, so the FFN embeds the press direction rotated into the camera frame (``R d``), not the world one.
 
+**Touch depth (extension, not in the paper; ``touch_depth=True``, ``experiment=touch_depth``):** the paper uses a
+touch's position only to find its pixel, so the network never learns how far from the camera the touched surface
+is, the one thing a single view cannot tell. With ``touch_depth`` the direction FFN also reads the touch's depth
+along the camera axis (camera-frame z, world units): input ``(R d, z)`` instead of ``R d``; everything else is the
+paper's model.
+
 ``no_gap`` ablation (``use_gap=False``), documented choice: the Agg block skips GAP and applies its 1x1 conv stack
 to the full tactile map (N, C_j, h_i, w_i); the result (times the direction embedding, broadcast over pixels) is
 resized bilinearly to the visual stage's full resolution (h_j, w_j) and added to **every** pixel of the visual map,
@@ -122,33 +128,47 @@ class AggBlock(nn.Module):
 
 
 class DirectionFFN(nn.Module):
-    """Direction embedding shared by all Agg blocks: Linear(3, hidden) -> ReLU -> Linear(hidden, out_channels).
+    """Direction embedding shared by all Agg blocks: Linear(3 [+1], hidden) -> ReLU -> Linear(hidden, out_channels).
 
     Target stages with fewer channels use the first ``C_j`` entries (slicing, see module docstring).
+
+    Args:
+        hidden: hidden width.
+        out_channels: embedding width (the largest visual stage's channels).
+        with_depth: a fourth input, the touch's camera-frame depth (``touch_depth`` extension).
     """
 
-    def __init__(self, hidden: int = 128, out_channels: int = 512) -> None:
+    def __init__(self, hidden: int = 128, out_channels: int = 512, with_depth: bool = False) -> None:
         super().__init__()
         self.out_channels = out_channels
-        self.net = nn.Sequential(nn.Linear(3, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, out_channels))
+        self.with_depth = with_depth
+        inputs = 4 if with_depth else 3
+        self.net = nn.Sequential(nn.Linear(inputs, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, out_channels))
 
-    def forward(self, directions: Tensor) -> Tensor:
-        """Args: directions (N, 3) float unit press directions (camera frame). Returns (N, out_channels) float."""
+    def forward(self, directions: Tensor, depth: Tensor | None = None) -> Tensor:
+        """Args: directions (N, 3) float unit press directions (camera frame); depth (N,) float camera-frame depth
+        of each touch (required with ``with_depth``, else ignored). Returns (N, out_channels) float."""
         if directions.dim() != 2 or directions.shape[1] != 3:
             raise ValueError(f"directions must have shape (N, 3), got {tuple(directions.shape)}")
-        return self.net(directions)
+        if not self.with_depth:
+            return self.net(directions)
+        if depth is None or depth.shape != (directions.shape[0],):
+            got = None if depth is None else tuple(depth.shape)
+            raise ValueError(f"with_depth needs depth of shape (N,) = ({directions.shape[0]},), got {got}")
+        return self.net(torch.cat([directions, depth[:, None].to(directions.dtype)], dim=1))
 
 
 class TouchPlacement(NamedTuple):
     """Where the contributing touches land: N touches that are unmasked, in front of the camera and inside the image.
 
     batch_index: (N,) int64 sample of each touch; uv: (N, 2) float image pixel coordinates;
-    touch_index: (N,) int64 flat index into the B * T touches.
+    touch_index: (N,) int64 flat index into the B * T touches; depth: (N,) float camera-frame depth (z > 0).
     """
 
     batch_index: Tensor
     uv: Tensor
     touch_index: Tensor
+    depth: Tensor
 
 
 def locate_touches(
@@ -163,7 +183,7 @@ def locate_touches(
         touch_mask: (B, T) bool, True = real touch (None = all real).
 
     Returns:
-        ``TouchPlacement(batch_index (N,), uv (N, 2), touch_index (N,))``.
+        ``TouchPlacement(batch_index (N,), uv (N, 2), touch_index (N,), depth (N,))``.
     """
     if positions.dim() != 3 or positions.shape[-1] != 3:
         raise ValueError(f"positions must have shape (B, T, 3), got {tuple(positions.shape)}")
@@ -175,7 +195,7 @@ def locate_touches(
     if touch_mask is not None:
         valid = valid & touch_mask.to(torch.bool)
     flat = valid.flatten().nonzero(as_tuple=True)[0]  # (N,)
-    return TouchPlacement(flat // T, uv.flatten(0, 1)[flat], flat)
+    return TouchPlacement(flat // T, uv.flatten(0, 1)[flat], flat, z.flatten()[flat])
 
 
 def place_embeddings(
@@ -260,6 +280,8 @@ class TactileVisualFusion(nn.Module):
         direction_hidden: hidden width of the direction FFN.
         agg_hidden: hidden width of the Agg 1x1 convs (None = the target visual stage's channels).
         zero_init: start every Agg block at zero output (see module docstring).
+        touch_depth: the direction FFN also reads each touch's camera-frame depth (extension, see module docstring;
+            needs ``use_direction``).
     """
 
     def __init__(
@@ -273,8 +295,11 @@ class TactileVisualFusion(nn.Module):
         direction_hidden: int = 128,
         agg_hidden: int | None = None,
         zero_init: bool = True,
+        touch_depth: bool = False,
     ) -> None:
         super().__init__()
+        if touch_depth and not use_direction:
+            raise ValueError("touch_depth enters through the direction FFN: it needs use_direction=True")
         if region < 1 or region % 2 == 0:
             raise ValueError(f"region must be an odd positive integer (1, 3, 5, ...), got {region}")
         if single_stage and len(tactile_channels) != len(visual_channels):
@@ -288,6 +313,7 @@ class TactileVisualFusion(nn.Module):
         self.region = region
         self.use_gap = use_gap
         self.use_direction = use_direction
+        self.touch_depth = touch_depth
         self.pairs: list[tuple[int, int]] = [
             (i, j)
             for j in range(len(self.visual_channels))
@@ -302,13 +328,16 @@ class TactileVisualFusion(nn.Module):
                 for i, j in self.pairs
             }
         )
-        self.direction_ffn = DirectionFFN(direction_hidden, max(self.visual_channels)) if use_direction else None
+        self.direction_ffn = (
+            DirectionFFN(direction_hidden, max(self.visual_channels), with_depth=touch_depth) if use_direction else None
+        )
 
-    def embed_directions(self, directions: Tensor) -> Tensor | None:
-        """Args: directions (N, 3) float. Returns (N, max visual channels) float, or None without direction."""
+    def embed_directions(self, directions: Tensor, depth: Tensor | None = None) -> Tensor | None:
+        """Args: directions (N, 3) float (camera frame); depth (N,) float camera-frame depth (used with
+        ``touch_depth``). Returns (N, max visual channels) float, or None without direction."""
         if self.direction_ffn is None:
             return None
-        return self.direction_ffn(directions)
+        return self.direction_ffn(directions, depth)
 
     def forward(
         self,

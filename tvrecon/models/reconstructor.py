@@ -156,5 +156,5 @@ class TactileVisualReconstructor(nn.Module):
         feats = self.tactile(tactile.flatten(0, 1)[idx])  # 4 x (N, C_i, h_i, w_i)
         # press directions in the camera frame (R d), the frame of the predicted mesh (see tvrecon.models.fusion)
         dirs_cam = directions @ RT[:, :, :3].transpose(1, 2)  # (B, T, 3)
-        dir_emb = self.fusion.embed_directions(dirs_cam.flatten(0, 1)[idx].to(tactile.dtype))
+        dir_emb = self.fusion.embed_directions(dirs_cam.flatten(0, 1)[idx].to(tactile.dtype), placement.depth)
         return feats, dir_emb, placement
