@@ -125,6 +125,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Evaluate every checkpoint named by ``cfg`` and write/print the tables. Returns results and table text."""
+    if cfg.get("torch_threads"):
+        torch.set_num_threads(int(cfg.torch_threads))
     ckpts = find_checkpoints(cfg.get("ckpt_path"), cfg.get("run_dir"), str(cfg.get("prefer", "best")))
     out_root = Path(cfg.paths.output_dir)
     results = []

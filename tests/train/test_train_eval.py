@@ -116,9 +116,10 @@ def test_missing_checkpoint_names_path_and_command(tmp_path: Path) -> None:
     from eval import evaluate
 
     missing = tmp_path / "nope" / "last.ckpt"
-    cfg = compose_config("eval", [f"ckpt_path={missing}"], tmp_path)
+    cfg = compose_config("eval", [f"ckpt_path={missing}", "torch_threads=2"], tmp_path)
     with pytest.raises(FileNotFoundError, match=r"checkpoint .*nope/last\.ckpt does not exist.*python train\.py"):
         evaluate(cfg)
+    assert torch.get_num_threads() == 2  # eval.py's torch_threads, like train.py's (the fixture restores it)
     (tmp_path / "empty").mkdir()
     cfg = compose_config("eval", [f"run_dir={tmp_path / 'empty'}"], tmp_path)
     with pytest.raises(FileNotFoundError, match=r"no checkpoints/\*\.ckpt below .*empty.*experiment=smoke"):
