@@ -10,8 +10,9 @@ Reconstruction (``tvrecon.models.lit_recon.ReconstructionModule.test_results``):
                "tv@2": {...}, "tv@5": {...}, "tv@10": {...}}}
 
 Mode keys: ``"visual"`` (no touch: the visual-only model, or a fusion model with every touch masked out),
-``"tactile@k"`` (blank view, first k touches), ``"tv@k"`` (view and first k touches). Chamfer values are
-already scaled by 1e3 (the paper's "x 1e-3" unit).
+``"tactile@k"`` (blank view, first k touches), ``"tv@k"`` (view and first k touches), and with ``touch_controls``
+``"<mode>:other"`` / ``"<mode>:blank"`` (the most touches with another object's or zero tactile content).
+Chamfer values are already scaled by 1e3 (the paper's "x 1e-3" unit).
 
 Classification (``tvrecon.models.lit_cls.ClassificationModule.test_results``)::
 
@@ -24,6 +25,7 @@ evaluated, an extra "Ours" row assembles them the way the paper does (Visual fro
 Tactile from the tactile-only model, Tactile & Visual from the full model).
 Table 4 (one row per model): per-class chamfer with the most touches the model was evaluated with (10) and
 the class average. Table 2: classification accuracy (%) by number of touches, mean +- std over runs (seeds).
+Touch controls (when a model was tested with ``touch_controls``): own touches against another object's and blank ones.
 """
 
 from __future__ import annotations
@@ -160,7 +162,7 @@ def primary_mode(result: Mapping[str, Any]) -> str:
     """The mode used for Table 4: the most touches of the model's own modality (``"visual"`` for visual-only)."""
     modes = result["modes"]
     for prefix in ("tv@", "tactile@"):
-        ks = [int(m.split("@")[1]) for m in modes if m.startswith(prefix)]
+        ks = [int(m.split("@")[1]) for m in modes if m.startswith(prefix) and ":" not in m]
         if ks:
             return f"{prefix}{max(ks)}"
     if "visual" in modes:
@@ -250,6 +252,29 @@ def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
     return Table("Table 4: per-class chamfer x1e-3", ["Model"] + cols + ["Average"], rows, notes)
 
 
+def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
+    """Touch controls: chamfer (x1e-3) with the model's most touches, own vs replaced content (``:other``,
+    ``:blank`` modes of ``touch_controls``), one row per model that was tested with them."""
+    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    recon = [r for r in recon if any(":" in m for m in r["modes"])]
+    names = [str(r["name"]) for r in recon]
+    duplicates = {n for n in names if names.count(n) > 1}
+    header = ["Model", "Touches", "No touch", "Own touches", "Another object's touches", "Blank tactile images"]
+    rows = []
+    for r in recon:
+        base = primary_mode(r)
+        rows.append(
+            [_label(r, duplicates), base.split("@")[1], _fmt(_chamfer(r, "visual"))]
+            + [_fmt(_chamfer(r, m)) for m in (base, f"{base}:other", f"{base}:blank")]
+        )
+    notes = [
+        "Chamfer x1e-3 with the touches' positions kept and their content replaced: another object's tactile images "
+        "and directions (the next sample of the batch), or zero tactile images. A model that reads its touches does "
+        "worse with both than with its own."
+    ]
+    return Table("Touch controls: does the model read the touches?", header, rows, notes)
+
+
 def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
     """Table 2: classification accuracy (%) by number of touches, mean +- std over the runs (seeds).
 
@@ -283,6 +308,8 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
     if any(r["task"] == "reconstruction" for r in results):
         tables["table3"] = build_table3(results)
         tables["table4"] = build_table4(results, classes)
+        if any(":" in m for r in results if r["task"] == "reconstruction" for m in r["modes"]):
+            tables["touch_controls"] = build_touch_controls(results)
     if any(r["task"] == "classification" for r in results):
         tables["table2"] = build_table2(results)
     return tables
@@ -300,8 +327,8 @@ def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]
 
 
 def format_tables(tables: Mapping[str, Table]) -> str:
-    """All tables as one Markdown text (Table 2, then 3, then 4)."""
-    order = ["table2", "table3", "table4"]
+    """All tables as one Markdown text (Table 2, then 3, then 4, then the touch controls)."""
+    order = ["table2", "table3", "table4", "touch_controls"]
     keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
     return "\n".join(tables[k].to_markdown() for k in keys)
 

@@ -162,3 +162,33 @@ def test_classification_fit_test_and_learns(tmp_path: Path) -> None:
     assert res["accuracy"]["2"] > 0.5  # 3 separable classes: far above chance (1/3)
     with pytest.raises(ValueError, match="num_touches must be in"):
         ClassificationModule(TactileClassifier(num_classes=3, num_touches=2), _optimizer, num_touches=3)
+
+
+def test_touch_controls_replace_the_touch_content(tmp_path: Path) -> None:
+    batch = {
+        "tactile": torch.arange(3.0)[:, None, None, None, None].expand(3, 2, 3, 4, 4).clone(),
+        "directions": torch.arange(3.0)[:, None, None].expand(3, 2, 3).clone(),
+        "positions": torch.randn(3, 2, 3),
+    }
+    other = ReconstructionModule.control_batch(batch, "other")
+    assert other["tactile"][:, 0, 0, 0, 0].tolist() == [1.0, 2.0, 0.0]  # the next sample's touches
+    assert other["directions"][:, 0, 0].tolist() == [1.0, 2.0, 0.0]
+    assert other["positions"] is batch["positions"] and batch["tactile"][0].sum() == 0  # input left alone
+    blank = ReconstructionModule.control_batch(batch, "blank")
+    assert blank["tactile"].abs().sum() == 0 and blank["directions"] is batch["directions"]
+    assert ReconstructionModule.control_batch({k: v[:1] for k, v in batch.items()}, "other") is None
+    with pytest.raises(ValueError, match="control must be one of"):
+        ReconstructionModule.control_batch(batch, "shuffle")
+
+    model = ReconstructionModule(
+        _net("tactile_only"), _optimizer, eval_touches=(2, 5), metric_points=200, name="tactile_only",
+        export=False, render_every_n_epochs=0, touch_controls=True,
+    )  # fmt: skip
+    dm = SyntheticReconDataModule(batch_size=2, n=4)
+    trainer = _trainer(tmp_path, max_epochs=1, limit_train_batches=1, limit_val_batches=1, limit_test_batches=2)
+    trainer.fit(model, dm)
+    trainer.test(model, dm)
+    modes = model.test_results["modes"]
+    assert set(modes) == {"tactile@2", "tactile@5", "tactile@5:other", "tactile@5:blank"}
+    assert modes["tactile@5:other"]["count"] == modes["tactile@5"]["count"] == 4
+    assert modes["tactile@5:blank"]["chamfer"] != modes["tactile@5"]["chamfer"]

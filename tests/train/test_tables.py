@@ -127,3 +127,22 @@ def test_cli_errors_name_the_problem(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit):
         main([str(tmp_path)])
     assert "is not valid JSON" in capsys.readouterr().err
+
+
+def test_touch_controls_table_only_for_models_tested_with_them() -> None:
+    controlled = _recon(
+        "full", "tactile_visual",
+        {"visual": 11.94, "tv@2": 11.96, "tv@10": 12.16, "tv@10:other": 12.13, "tv@10:blank": 12.34},
+        {"bottle": 4.5},
+    )  # fmt: skip
+    tables = build_tables([controlled, VIS])
+    rows = _csv_rows(tables["touch_controls"].to_csv())
+    assert rows[0] == [
+        "Model", "Touches", "No touch", "Own touches", "Another object's touches", "Blank tactile images"
+    ]  # fmt: skip
+    assert rows[1:] == [["Ours", "10", "11.94", "12.16", "12.13", "12.34"]]  # visual_only has no controls
+    # the controls never become a model's primary (Table 3/4) mode
+    ours = [r for r in _csv_rows(tables["table4"].to_csv()) if r[0] == "Ours"]
+    assert ours[0][-1] == "4.50" and "Ours: tv@10" in tables["table4"].to_markdown()
+    assert "touch_controls" not in build_tables([FULL, VIS])
+    assert format_tables(tables).index("Table 4") < format_tables(tables).index("Touch controls")

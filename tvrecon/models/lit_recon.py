@@ -16,6 +16,11 @@ Test: every batch is evaluated in the modes of the network (see :mod:`tvrecon.ta
 - ``mode="visual_only"``: ``"visual"``;
 - ``mode="tactile_only"``: ``"tactile@k"`` (the network blanks the view itself).
 
+With ``touch_controls`` a model that reads touches is also tested with its most touches whose content is replaced
+(the positions kept, so the same pixels receive an embedding): ``"<mode>:other"`` takes the tactile images and
+directions of the next sample in the batch (another object; batches of one sample are skipped), ``"<mode>:blank"``
+zero tactile images. A model that has learned to read the touches does worse in both than with its own.
+
 "first k touches" means the k first valid touches of the sample (fewer if the sample has fewer; the mean number
 actually used is reported per mode as ``touches``). Per mode it accumulates the mean chamfer (x1e-3), F-scores and
 the per-class chamfer, exports one predicted mesh per class as ``.obj`` and one side-by-side render per class, and
@@ -39,11 +44,12 @@ from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
 from tvrecon.models.projection import world_to_camera
 from tvrecon.viz import export_obj, render_mesh_comparison
 
-__all__ = ["ReconstructionModule", "gt_to_camera", "keep_first_touches"]
+__all__ = ["TOUCH_CONTROLS", "ReconstructionModule", "gt_to_camera", "keep_first_touches"]
 
 log = logging.getLogger(__name__)
 
 MODALITY = {"fusion": "tactile_visual", "visual_only": "visual", "tactile_only": "tactile"}
+TOUCH_CONTROLS = ("other", "blank")  # test modes with the touches' content replaced (touch_controls)
 
 
 def gt_to_camera(points: Tensor, normals: Tensor, RT: Tensor) -> tuple[Tensor, Tensor]:
@@ -118,6 +124,7 @@ class ReconstructionModule(L.LightningModule):
         render_every_n_epochs: period of the validation render (0 disables it).
         output_dir: folder for renders and meshes (None = the trainer's ``default_root_dir``).
         lr_scales: parameter name prefix -> learning-rate factor (e.g. ``{"net.fusion": 10}``); None = one lr.
+        touch_controls: also test with the touches' content replaced (``:other``, ``:blank``; see module doc).
     """
 
     def __init__(
@@ -141,6 +148,7 @@ class ReconstructionModule(L.LightningModule):
         render_every_n_epochs: int = 1,
         output_dir: str | None = None,
         lr_scales: Mapping[str, float] | None = None,
+        touch_controls: bool = False,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -278,9 +286,34 @@ class ReconstructionModule(L.LightningModule):
     def _modes(self) -> list[tuple[str, int]]:
         if self.modality == "visual":
             return [("visual", 0)]
-        if self.modality == "tactile":
-            return [(f"tactile@{k}", k) for k in self.eval_touches]
-        return [("visual", 0)] + [(f"tv@{k}", k) for k in self.eval_touches]
+        prefix = "tactile" if self.modality == "tactile" else "tv"
+        modes = [] if self.modality == "tactile" else [("visual", 0)]
+        modes += [(f"{prefix}@{k}", k) for k in self.eval_touches]
+        if self.hparams.get("touch_controls"):
+            k = self.eval_touches[-1]
+            modes += [(f"{prefix}@{k}:{control}", k) for control in TOUCH_CONTROLS]
+        return modes
+
+    @staticmethod
+    def control_batch(batch: Mapping[str, Tensor], control: str) -> dict[str, Tensor] | None:
+        """The batch with its touches' content replaced (positions and masks kept), None if it cannot be.
+
+        Args:
+            batch: collated sample dict with ``tactile`` (B, T, 3, h, w) and ``directions`` (B, T, 3).
+            control: ``"other"`` (the next sample's tactile images and directions; None for B = 1) or ``"blank"``
+                (zero tactile images, own directions).
+        """
+        out = dict(batch)
+        if control == "other":
+            if batch["tactile"].shape[0] < 2:
+                return None
+            out["tactile"] = batch["tactile"].roll(-1, dims=0)
+            out["directions"] = batch["directions"].roll(-1, dims=0)
+        elif control == "blank":
+            out["tactile"] = torch.zeros_like(batch["tactile"])
+        else:
+            raise ValueError(f"control must be one of {TOUCH_CONTROLS}, got {control!r}")
+        return out
 
     def _names(self) -> list[str]:
         if self.class_names is not None:
@@ -314,7 +347,11 @@ class ReconstructionModule(L.LightningModule):
         labels = batch["label"].long()
         for mode, k in self._modes():
             mask = None if k == 0 else keep_first_touches(batch["touch_mask"], k)
-            out = self(batch, mask)
+            control = mode.partition(":")[2]
+            inputs = self.control_batch(batch, control) if control else batch
+            if inputs is None:
+                continue
+            out = self(inputs, mask)
             metrics = self._metrics(out, points)
             cd = metrics["chamfer"].double()  # (B,)
             acc = self._acc[mode]
@@ -328,7 +365,7 @@ class ReconstructionModule(L.LightningModule):
                 raise ValueError(f"label {int(labels.max())} outside the {n_cls} known classes; pass class_names")
             acc["class_sum"].index_add_(0, labels, cd)
             acc["class_count"].index_add_(0, labels, torch.ones_like(cd))
-            if self.hparams.export:
+            if self.hparams.export and not control:
                 self._export(mode, out, points, labels, batch["image"])
             self.log(f"test/chamfer_{mode}", cd.mean(), batch_size=cd.numel(), sync_dist=True)
 
