@@ -102,3 +102,18 @@ def test_graph_conv_keeps_low_precision_dtype() -> None:
     conv = GraphConv(4, 2).to(torch.bfloat16)
     out = conv(torch.randn(1, 3, 4, dtype=torch.bfloat16), edges)
     assert out.dtype == torch.bfloat16 and torch.isfinite(out.float()).all()
+
+
+def test_mesh_deformer_reuses_its_neighbour_operators() -> None:
+    deformer = MeshDeformer(feature_channels=[4], hidden=8, num_blocks=1)
+    feats = [torch.randn(2, 4, 8, 8)]
+    K = torch.tensor([[20.0, 0, 15.5], [0, 20.0, 15.5], [0, 0, 1]]).repeat(2, 1, 1)
+    first = deformer(feats, K, (32, 32))["verts"][-1]
+    cached = dict(deformer._neighbours)
+    assert len(cached) == 3  # one per level for B = 2
+    again = deformer(feats, K, (32, 32))["verts"][-1]
+    assert all(deformer._neighbours[k] is v for k, v in cached.items()) and len(deformer._neighbours) == 3
+    assert torch.equal(first, again)
+    V = deformer.template.verts(2).shape[0]
+    ref = neighbour_matrix(deformer.template.edges(2), V, "mean", 2).to_dense()
+    assert torch.equal(cached[(2, 2, torch.device("cpu"))].to_dense(), ref)

@@ -3,7 +3,7 @@
 * ``GraphConv``: ``f_v' = W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (eq. 15-16), by default degree-normalised (mean
   over neighbours, see ``GraphConv``). The neighbour sum is one product with a sparse CSR matrix, block-diagonal
   over the batch (``neighbour_matrix``, built once per mesh level by ``MeshDeformer``), instead of gathering both
-  ends of every edge and ``index_add`` (``benchmarks/reference_gcn.py``; speed in ``benchmarks/bench_train_step.py``).
+  ends of every edge and ``index_add`` (``benchmarks/reference_train.py``; speed in ``benchmarks/bench_train_step.py``).
 * ``GResBlock``: two graph convs with ReLU and a residual connection, ``(x + conv2(relu(conv1(x)))) / 2`` as in
   Pixel2Mesh.
 * ``PerceptualPooling``: vertices (camera frame) are projected with K (kornia) and each visual stage is sampled
@@ -241,6 +241,9 @@ class MeshDeformer(nn.Module):
         self.pool = PerceptualPooling()
         self.num_stages = num_stages
         self.aggregate = aggregate
+        # neighbour operators of the template's levels, built on first use per (level, batch size, device): the edges
+        # never change, so a training step reuses them instead of rebuilding (and re-validating) three per forward
+        self._neighbours: dict[tuple[int, int, torch.device], Tensor] = {}
         perceptual = int(sum(feature_channels))
         self.stages = nn.ModuleList(
             [
@@ -248,6 +251,15 @@ class MeshDeformer(nn.Module):
                 for s in range(num_stages)
             ]
         )
+
+    def _level_neighbours(self, level: int, batch_size: int) -> Tensor:
+        """The cached ``neighbour_matrix`` of template level ``level`` for ``batch_size`` meshes (B*V, B*V)."""
+        edges = self.template.edges(level)
+        key = (level, batch_size, edges.device)
+        if key not in self._neighbours:
+            V = self.template.verts(level).shape[0]
+            self._neighbours[key] = neighbour_matrix(edges, V, self.aggregate, batch_size)
+        return self._neighbours[key]
 
     def forward(self, features: Sequence[Tensor], K: Tensor, image_size: tuple[int, int]) -> dict[str, list[Tensor]]:
         """Deform the ellipsoid under the perceptual features.
@@ -275,7 +287,7 @@ class MeshDeformer(nn.Module):
             pooled = self.pool(x, K, features, image_size)  # (B, V_s, sum C)
             parts = [x, pooled] if hidden is None else [hidden, x, pooled]
             g = torch.cat(parts, dim=-1)  # eq. 14
-            neighbours = neighbour_matrix(edges, x.shape[1], self.aggregate, B)  # one operator for the level's convs
+            neighbours = self._level_neighbours(s, B)  # one operator for all the level's convs
             new_x, hidden = block(g, x, edges, neighbours)
             out["verts_before"].append(x)
             out["verts"].append(new_x)
