@@ -232,3 +232,18 @@ def test_bad_arguments_raise_clear_errors(tmp_path: Path):
     with pytest.raises(IndexError, match="out of range"):
         recon(tmp_path)[3]
     assert coerce_config(SensorConfig, {"resolution": [8, 8]}).resolution == (8, 8)
+
+
+def test_reconstruction_sample_exposes_contact_patches(recon_cache: Path):
+    ds = recon(recon_cache)
+    s = ds[1]
+    M, Hs, Ws = ds.max_touches, *ds.sensor.resolution
+    T = ds.num_touches(1)
+    assert s["patch_points"].shape == (M, Hs * Ws, 3) and s["patch_normals"].shape == (M, Hs * Ws, 3)
+    assert s["patch_mask"].shape == (M, Hs * Ws) and s["patch_mask"].dtype == torch.bool
+    assert not s["patch_mask"][T:].any()  # padded touches have no patch
+    assert s["patch_mask"][:T].any()
+    # pushed-in contact-layer points lie on the object's surface (within a cell at this tiny grid)
+    pts = s["patch_points"][s["patch_mask"]].double().numpy()
+    _, dist, _ = trimesh.proximity.closest_point(ds.mesh(1), pts)
+    assert dist.max() * ds.press.n_grid / ds.press.domain_size < 1.0

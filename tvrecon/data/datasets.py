@@ -37,6 +37,7 @@ from tvrecon.data.cache import SampleCache
 from tvrecon.data.render import render_view, sample_camera
 from tvrecon.data.shapes import ObjectLibrary
 from tvrecon.data.touches import TouchPolicy, resize_tactile, sample_touches, simulate_touches
+from tvrecon.sim.contact import contact_patch
 from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
 
 __all__ = [
@@ -338,7 +339,12 @@ class ReconstructionDataset(GeneratedDataset):
         tactile (max_touches,3,h,w) float32 (scaled grid cells, zeros where padded);
         positions (max_touches,3), directions (max_touches,3) float32 world (zeros where padded);
         touch_mask (max_touches,) bool (first T True); points (N,3), normals (N,3) float32 world, area-weighted
-        seeded samples of the GT surface; label int64 (index into ``library.classes``).
+        seeded samples of the GT surface; label int64 (index into ``library.classes``);
+        patch_points (max_touches,Hs*Ws,3), patch_normals (max_touches,Hs*Ws,3) float32 world and patch_mask
+        (max_touches,Hs*Ws) bool: each touch's contact layer mapped back to 3D
+        (:func:`tvrecon.sim.contact.contact_patch`, derived from the cached raw image, position and direction at
+        the sensor's resolution Hs x Ws; no regeneration), the mask True where the pad was pushed in by more than
+        0.1 cell (False on padded touches).
 
     Args (in addition to :class:`GeneratedDataset`):
         num_samples: number of samples (objects; one view each).
@@ -426,6 +432,7 @@ class ReconstructionDataset(GeneratedDataset):
         directions[:T] = torch.from_numpy(raw["directions"][:T])
         mask = torch.zeros(M, dtype=torch.bool)
         mask[:T] = True
+        patch_points, patch_normals, patch_mask = self._patches(raw, T)
         return {
             "image": torch.from_numpy(raw["image"]),
             "K": torch.from_numpy(raw["K"]),
@@ -437,7 +444,32 @@ class ReconstructionDataset(GeneratedDataset):
             "points": torch.from_numpy(raw["points"]),
             "normals": torch.from_numpy(raw["normals"]),
             "label": torch.tensor(int(raw["label"]), dtype=torch.int64),
+            "patch_points": patch_points,
+            "patch_normals": patch_normals,
+            "patch_mask": patch_mask,
         }
+
+    def _patches(self, raw: Mapping[str, np.ndarray], T: int) -> tuple[Tensor, Tensor, Tensor]:
+        """Contact patches of the first T cached touches, padded to max_touches.
+
+        Returns points (M, Hs*Ws, 3) float32, normals (M, Hs*Ws, 3) float32 world, mask (M, Hs*Ws) bool.
+        """
+        M = self.max_touches
+        Hs, Ws = self.sensor.resolution
+        points = torch.zeros((M, Hs * Ws, 3), dtype=torch.float32)
+        normals = torch.zeros((M, Hs * Ws, 3), dtype=torch.float32)
+        mask = torch.zeros((M, Hs * Ws), dtype=torch.bool)
+        if T > 0:
+            patch = contact_patch(
+                torch.from_numpy(np.ascontiguousarray(raw["tactile"][:T])).float(),
+                torch.from_numpy(raw["positions"][:T]),
+                torch.from_numpy(raw["directions"][:T]),
+                self.sensor,
+                int(self.press.n_grid),
+                float(self.press.domain_size),
+            )
+            points[:T], normals[:T], mask[:T] = patch.points, patch.normals, patch.mask
+        return points, normals, mask
 
 
 class TactileClassificationDataset(GeneratedDataset):

@@ -6,14 +6,19 @@ Public names::
     SphereCollider, PlaneCollider, MeshCollider          # rigid colliders (colliders.py)
     SensorConfig, sensor_frame                           # the pad (sensor.py)
     PressConfig, TactileReading, EIPSimulator            # the press protocol (press.py)
+    ContactPatch, contact_patch, reading_patch           # a touch mapped back to 3D world points (contact.py)
 """
 
 from tvrecon.sim.colliders import MeshCollider, PlaneCollider, SphereCollider
+from tvrecon.sim.contact import ContactPatch, contact_patch, reading_patch
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
 from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading, chamfer_eq13
 from tvrecon.sim.sensor import SensorConfig, alpha_profile, pad_lattice, sensor_frame
 
 __all__ = [
+    "ContactPatch",
+    "contact_patch",
+    "reading_patch",
     "MLSMPM",
     "EIPSimulator",
     "MPMConfig",

@@ -1,0 +1,78 @@
+"""The contact patch: a touch mapped back to 3D world points (tvrecon.sim.contact)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import trimesh
+
+from tvrecon.sim.contact import contact_patch, reading_patch
+from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.sensor import SensorConfig
+
+N_GRID = 64
+
+
+@pytest.fixture(scope="module")
+def sphere_touches():
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
+    sensor = SensorConfig(resolution=(16, 16), layers=4, spacing=0.5)
+    sim = EIPSimulator(sensor=sensor, press=PressConfig(n_grid=N_GRID, record_every=1))
+    positions = torch.tensor([[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]])
+    directions = torch.tensor([[0.0, 0.0, -1.0], [-1.0, 0.2, 0.0]])
+    readings = sim.press_batch(mesh, positions, directions)
+    return mesh, sensor, readings
+
+
+def test_patch_equals_recorded_particles(sphere_touches):
+    _, sensor, readings = sphere_touches
+    HW = 16 * 16
+    for r in readings:
+        patch = reading_patch(r, sensor, N_GRID)
+        # the last recorded frame is the reading's step: the patch is the contact layer there, to float round-off
+        torch.testing.assert_close(patch.points, r.particles[-1][:HW], atol=1e-6, rtol=0)
+        assert patch.mask.sum() > 50
+
+
+def test_patch_lies_on_the_surface_with_outward_normals(sphere_touches):
+    mesh, sensor, readings = sphere_touches
+    for r in readings:
+        patch = reading_patch(r, sensor, N_GRID)
+        pts = patch.points[patch.mask]
+        _, dist, _ = trimesh.proximity.closest_point(mesh, pts.double().numpy())
+        assert dist.max() * N_GRID < 0.5  # within half a cell of the true surface
+        outward = pts / pts.norm(dim=-1, keepdim=True)  # sphere centred at 0
+        assert float((patch.normals[patch.mask] * outward).sum(-1).min()) > 0.9
+
+
+def test_batched_equals_single(sphere_touches):
+    _, sensor, readings = sphere_touches
+    images = torch.stack([r.image for r in readings])
+    pos = torch.stack([r.position for r in readings])
+    dirs = torch.stack([r.direction for r in readings])
+    batch = contact_patch(images, pos, dirs, sensor, N_GRID)
+    assert batch.points.shape == (2, 256, 3) and batch.mask.shape == (2, 256)
+    for t, r in enumerate(readings):
+        one = reading_patch(r, sensor, N_GRID)
+        torch.testing.assert_close(batch.points[t], one.points)
+        assert torch.equal(batch.mask[t], one.mask)
+
+
+def test_blank_image_has_no_contact_and_is_the_rest_pad():
+    sensor = SensorConfig(resolution=(4, 6), layers=2)
+    patch = contact_patch(torch.zeros(3, 4, 6), torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
+    assert not patch.mask.any()
+    assert torch.allclose(patch.points[:, 2], torch.zeros(24))  # the rest contact plane through the position
+    assert torch.allclose(patch.normals, torch.tensor([0.0, 0.0, 1.0]).expand(24, 3))
+
+
+def test_bad_input_is_named():
+    sensor = SensorConfig(resolution=(4, 4), layers=2)
+    with pytest.raises(ValueError, match="sensor's resolution"):
+        contact_patch(torch.zeros(3, 5, 4), torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
+    with pytest.raises(ValueError, match="non-zero"):
+        contact_patch(torch.zeros(3, 4, 4), torch.zeros(3), torch.zeros(3), sensor, 32)
+    bad = torch.zeros(3, 4, 4)
+    bad[0, 0, 0] = float("nan")
+    with pytest.raises(ValueError, match="NaN"):
+        contact_patch(bad, torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
