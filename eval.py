@@ -103,6 +103,7 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
             run_cfg.model.eval_touches = list(cfg.eval_touches)
             run_cfg.model.export = bool(cfg.export)
             run_cfg.model.touch_controls = bool(cfg.get("touch_controls", False))
+            run_cfg.model.refine = bool(cfg.get("refine", False))
     fix_test_touches(run_cfg.data)
     L.seed_everything(int(cfg.seed), workers=True)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(run_cfg.data)

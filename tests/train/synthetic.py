@@ -28,7 +28,7 @@ def _sphere(n: int, g: torch.Generator) -> torch.Tensor:
 
 class SyntheticRecon(Dataset):
     """Reconstruction samples: image (3,H,W), K, RT, tactile (T,3,h,w), positions/directions (T,3), touch_mask (T,),
-    points/normals (N,3) world, label."""
+    points/normals (N,3) world, label, patch_points/patch_normals (T,Q,3) world and patch_mask (T,Q)."""
 
     def __init__(self, n: int, seed: int, image_size: int = 64, tactile_size: int = 16, touches: int = 10, points=256):
         self.n, self.seed, self.H, self.h, self.T, self.N = n, seed, image_size, tactile_size, touches, points
@@ -46,6 +46,9 @@ class SyntheticRecon(Dataset):
         touch_dirs = _sphere(self.T, g)
         n_valid = 1 + i % self.T
         mask = torch.arange(self.T) < n_valid
+        # contact patches: Q surface points around each touch (world), masked with their touch
+        around = touch_dirs[:, None, :] + 0.1 * torch.randn(self.T, 8, 3, generator=g)  # (T, Q, 3)
+        around = around / around.norm(dim=-1, keepdim=True)
         return {
             "image": torch.rand(3, self.H, self.H, generator=g),
             "K": K,
@@ -57,6 +60,9 @@ class SyntheticRecon(Dataset):
             "points": normals * radius,
             "normals": normals,
             "label": torch.tensor(i % len(CLASSES), dtype=torch.int64),
+            "patch_points": around * radius * mask[:, None, None],
+            "patch_normals": around * mask[:, None, None],
+            "patch_mask": mask[:, None].expand(self.T, 8).clone(),
         }
 
 

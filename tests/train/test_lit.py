@@ -192,3 +192,25 @@ def test_touch_controls_replace_the_touch_content(tmp_path: Path) -> None:
     assert set(modes) == {"tactile@2", "tactile@5", "tactile@5:other", "tactile@5:blank"}
     assert modes["tactile@5:other"]["count"] == modes["tactile@5"]["count"] == 4
     assert modes["tactile@5:blank"]["chamfer"] != modes["tactile@5"]["chamfer"]
+
+
+def test_refine_modes_for_visual_only_and_fusion(tmp_path: Path) -> None:
+    dm = SyntheticReconDataModule(batch_size=2, n=4)
+    for mode, expected in (
+        ("visual_only", {"visual", "visual+refine@2", "visual+refine@5"}),
+        ("fusion", {"visual", "tv@2", "tv@5", "tv@2+refine", "tv@5+refine"}),
+    ):
+        model = ReconstructionModule(
+            _net(mode), _optimizer, eval_touches=(2, 5), metric_points=200, name=mode,
+            export=False, render_every_n_epochs=0, refine=True, refine_steps=20,
+        )  # fmt: skip
+        trainer = _trainer(tmp_path / mode, max_epochs=1, limit_train_batches=1, limit_val_batches=1)
+        trainer.fit(model, dm)
+        trainer.test(model, dm)
+        modes = model.test_results["modes"]
+        assert set(modes) == expected
+        base = "visual" if mode == "visual_only" else "tv@5"
+        refined = "visual+refine@5" if mode == "visual_only" else "tv@5+refine"
+        # the untrained mesh is far from the sphere's surface: pulling it onto surface points lowers the chamfer
+        assert modes[refined]["chamfer"] < modes[base]["chamfer"]
+        assert modes[refined]["touches"] > 0

@@ -146,3 +146,14 @@ def test_touch_controls_table_only_for_models_tested_with_them() -> None:
     assert ours[0][-1] == "4.50" and "Ours: tv@10" in tables["table4"].to_markdown()
     assert "touch_controls" not in build_tables([FULL, VIS])
     assert format_tables(tables).index("Table 4") < format_tables(tables).index("Touch controls")
+
+
+def test_refined_modes_get_their_own_table3_row() -> None:
+    vis = _recon("visual_only", "visual", {"visual": 13.5, "visual+refine@2": 12.0, "visual+refine@5": 10.0}, {})
+    full = _recon("full", "tactile_visual", {"visual": 14.0, "tv@2": 12.5, "tv@2+refine": 11.0}, {})
+    table = build_table3([vis, full], touches=(2, 5))
+    rows = {r[0]: r for r in _csv_rows(table.to_csv())[1:]}
+    assert rows["Visual only (Pixel2Mesh) + touch refinement"][1:] == ["-", "-", "-", "12.00", "10.00"]
+    assert rows["Ours + touch refinement"][1:] == ["-", "-", "-", "11.00", "-"]
+    assert rows["Ours"][1:] == ["14.00*", "-", "-", "12.50", "-"]  # the refined modes stay out of the model's row
+    assert any("touch refinement" in note for note in table.notes)

@@ -42,6 +42,7 @@ from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
 from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
 from tvrecon.models.projection import world_to_camera
+from tvrecon.models.refine import refine_to_patches
 from tvrecon.viz import export_obj, render_mesh_comparison
 
 __all__ = ["TOUCH_CONTROLS", "ReconstructionModule", "gt_to_camera", "keep_first_touches"]
@@ -125,6 +126,10 @@ class ReconstructionModule(L.LightningModule):
         output_dir: folder for renders and meshes (None = the trainer's ``default_root_dir``).
         lr_scales: parameter name prefix -> learning-rate factor (e.g. ``{"net.fusion": 10}``); None = one lr.
         touch_controls: also test with the touches' content replaced (``:other``, ``:blank``; see module doc).
+        refine: also test with test-time touch refinement (:mod:`tvrecon.models.refine`): ``"<mode>+refine"`` for
+            every mode with touches, and ``"visual+refine@k"`` for a visual-only model (its no-touch prediction pulled
+            onto the first k touches' contact patches). Needs the samples' ``patch_points`` / ``patch_mask``.
+        refine_steps: Adam steps of the refinement.
     """
 
     def __init__(
@@ -149,6 +154,8 @@ class ReconstructionModule(L.LightningModule):
         output_dir: str | None = None,
         lr_scales: Mapping[str, float] | None = None,
         touch_controls: bool = False,
+        refine: bool = False,
+        refine_steps: int = 40,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -285,14 +292,45 @@ class ReconstructionModule(L.LightningModule):
 
     def _modes(self) -> list[tuple[str, int]]:
         if self.modality == "visual":
-            return [("visual", 0)]
+            refined = [(f"visual+refine@{k}", k) for k in self.eval_touches] if self.hparams.get("refine") else []
+            return [("visual", 0), *refined]
         prefix = "tactile" if self.modality == "tactile" else "tv"
         modes = [] if self.modality == "tactile" else [("visual", 0)]
         modes += [(f"{prefix}@{k}", k) for k in self.eval_touches]
         if self.hparams.get("touch_controls"):
             k = self.eval_touches[-1]
             modes += [(f"{prefix}@{k}:{control}", k) for control in TOUCH_CONTROLS]
+        if self.hparams.get("refine"):
+            modes += [(f"{prefix}@{k}+refine", k) for k in self.eval_touches]
         return modes
+
+    def refined(self, out: Mapping[str, list[Tensor]], batch: Mapping[str, Tensor], mask: Tensor) -> dict:
+        """The output with its last stage's vertices pulled onto the contact patches of the touches in ``mask``.
+
+        Args:
+            out: network output (camera-frame ``verts`` per stage, ``edges`` per stage).
+            batch: collated samples with ``patch_points`` (B, T, Q, 3) world and ``patch_mask`` (B, T, Q) bool, and RT.
+            mask: (B, T) bool, the touches to use.
+        """
+        if "patch_points" not in batch or "patch_mask" not in batch:
+            raise ValueError(
+                "refine needs the samples' contact patches (patch_points, patch_mask): use the datasets "
+                "of tvrecon.data (ReconstructionDataset exposes them)"
+            )
+        B, T, Q, _ = batch["patch_points"].shape
+        points = world_to_camera(batch["patch_points"].reshape(B, T * Q, 3), batch["RT"])  # (B, T*Q, 3)
+        valid = (batch["patch_mask"] & mask[:, :, None]).reshape(B, T * Q)  # (B, T*Q)
+        # keep the contact points only (padded per sample): the nearest-vertex search then costs what they cost
+        n = max(int(valid.sum(1).max()), 1)
+        order = torch.argsort(valid.to(torch.int8), dim=1, descending=True, stable=True)[:, :n]  # (B, n)
+        points = torch.gather(points, 1, order[..., None].expand(-1, -1, 3))
+        valid = torch.gather(valid, 1, order)
+        result = dict(out)
+        result["verts"] = list(out["verts"])
+        result["verts"][-1] = refine_to_patches(
+            out["verts"][-1], out["edges"][-1], points, valid, steps=int(self.hparams.get("refine_steps", 40))
+        )
+        return result
 
     @staticmethod
     def control_batch(batch: Mapping[str, Tensor], control: str) -> dict[str, Tensor] | None:
@@ -351,7 +389,11 @@ class ReconstructionModule(L.LightningModule):
             inputs = self.control_batch(batch, control) if control else batch
             if inputs is None:
                 continue
-            out = self(inputs, mask)
+            # "visual+refine@k": the no-touch prediction, refined with k touches
+            out = self(inputs, None if mode.startswith("visual") else mask)
+            if mode.partition("+")[2].startswith("refine"):
+                assert mask is not None
+                out = self.refined(out, batch, mask)
             metrics = self._metrics(out, points)
             cd = metrics["chamfer"].double()  # (B,)
             acc = self._acc[mode]
