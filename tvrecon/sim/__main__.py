@@ -133,7 +133,8 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
             steps=[reading.frame_steps[k] for k in pick],
             sections=sections,
         )
-        for k in pick[-min(args.ply, len(pick)) :]:
+        # pick[-0:] would be every frame: --ply 0 must write none
+        for k in pick[len(pick) - min(max(args.ply, 0), len(pick)) :]:
             normal = reading.frames[k][2].reshape(-1)
             values = torch.cat([normal, torch.zeros(reading.particles.shape[1] - H * W)])
             files[f"ply{k}"] = save_ply(reading.particles[k], out / f"pad_step{reading.frame_steps[k]:04d}.ply", values)
