@@ -232,3 +232,15 @@ def test_bad_arguments_raise_clear_errors(tmp_path: Path):
     with pytest.raises(IndexError, match="out of range"):
         recon(tmp_path)[3]
     assert coerce_config(SensorConfig, {"resolution": [8, 8]}).resolution == (8, 8)
+
+
+def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
+    """Issue 14 case 14: `sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
+    from tvrecon.data.cache import cache_key
+    from tvrecon.data.datasets import coerce_config
+    from tvrecon.sim.sensor import SensorConfig
+
+    a = coerce_config(SensorConfig, {"E": 3})
+    b = coerce_config(SensorConfig, {"E": 3.0})
+    assert isinstance(a.E, float)
+    assert cache_key({"sensor": a}) == cache_key({"sensor": b})
