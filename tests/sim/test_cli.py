@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from tvrecon.sim.__main__ import main
 
@@ -50,3 +51,15 @@ def test_cli_ply_zero_writes_no_ply(tmp_path: Path) -> None:
     assert main(args) == 0
     assert (out / "tactile.png").is_file()
     assert list(out.glob("pad_step*.ply")) == []
+
+
+def test_cli_rejects_nan_vertices_like_the_api(tmp_path: Path, capsys) -> None:
+    """Issue 14 case 2: the CLI pressed a mesh with a NaN vertex (trimesh dropped it) that the API rejects."""
+    mesh = trimesh.creation.box()
+    verts = np.asarray(mesh.vertices).copy()
+    verts[0, 0] = np.nan
+    path = tmp_path / "nan.obj"
+    path.write_text(trimesh.Trimesh(verts, mesh.faces, process=False).export(file_type="obj"))
+    args = ["press", "--shape", str(path), "--out", str(tmp_path / "o"), "--n-grid", "32", "--resolution", "6"]
+    assert main(args) == 2
+    assert "NaN" in capsys.readouterr().err

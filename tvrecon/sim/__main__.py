@@ -42,6 +42,10 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
     path = Path(name)
     if not path.is_file():
         raise ValueError(f"--shape must be one of {BUILTIN_SHAPES} or an existing mesh file, got {name!r}")
+    # trimesh's processing silently drops NaN vertices (leaving a hole): check the raw file like the API does
+    raw = trimesh.load(path, force="mesh", process=False)
+    if isinstance(raw, trimesh.Trimesh) and not np.isfinite(np.asarray(raw.vertices)).all():
+        raise ValueError(f"{path} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
     mesh = trimesh.load(path, force="mesh")
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path} holds no triangles")
