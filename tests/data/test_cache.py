@@ -160,3 +160,20 @@ def test_disabled_cache_always_generates(tmp_path: Path):
         cache.path("ab" * 32)
     with pytest.raises(ValueError, match="hex digest"):
         SampleCache(tmp_path).path("../etc")
+
+
+def test_unreadable_entry_is_reported_not_deleted_and_entries_get_umask_mode(tmp_path, monkeypatch) -> None:
+    """Issue 14 case 4: a permission error was treated as corruption (file deleted); entries were written 0600."""
+    from tvrecon.atomic import default_file_mode
+
+    cache = SampleCache(tmp_path)
+    path = cache.save("a" * 64, {"x": np.zeros(3)})
+    assert (path.stat().st_mode & 0o777) == default_file_mode()
+
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(np, "load", denied)  # chmod 0 does not stop root, so fake the other user's entry
+    with pytest.raises(ValueError, match="cannot be read"):
+        cache.load("a" * 64)
+    assert path.exists()

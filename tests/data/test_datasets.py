@@ -247,3 +247,15 @@ def test_reconstruction_sample_exposes_contact_patches(recon_cache: Path):
     pts = s["patch_points"][s["patch_mask"]].double().numpy()
     _, dist, _ = trimesh.proximity.closest_point(ds.mesh(1), pts)
     assert dist.max() * ds.press.n_grid / ds.press.domain_size < 1.0
+
+
+def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
+    """Issue 14 case 14: `sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
+    from tvrecon.data.cache import cache_key
+    from tvrecon.data.datasets import coerce_config
+    from tvrecon.sim.sensor import SensorConfig
+
+    a = coerce_config(SensorConfig, {"E": 3})
+    b = coerce_config(SensorConfig, {"E": 3.0})
+    assert isinstance(a.E, float)
+    assert cache_key({"sensor": a}) == cache_key({"sensor": b})

@@ -102,3 +102,9 @@ def test_parallel_workers(tmp_path: Path):
     for key in a:
         x, y = SampleCache(tmp_path).load(key), SampleCache(tmp_path / "serial").load(key)
         assert all(np.array_equal(x[k], y[k]) for k in x)
+
+
+def test_main_names_a_bad_workers_value() -> None:
+    """Issue 14 case 15: `workers=abc` ended in int()'s message without naming workers."""
+    with pytest.raises(ValueError, match="workers must be a whole number"):
+        main(["workers=abc"])

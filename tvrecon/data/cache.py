@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from tvrecon.atomic import default_file_mode
+
 log = logging.getLogger(__name__)
 
 #: Bump whenever the code that turns a spec into a sample changes its output; part of every key.
@@ -157,6 +159,10 @@ class SampleCache:
                 arrays = {name: z[name] for name in z.files}
             stored_key = str(arrays.pop(_KEY_FIELD))
             stored_sum = str(arrays.pop(_CHECKSUM_FIELD))
+        except PermissionError as err:
+            # not corruption: another user's entry in a shared cache; never delete it
+            msg = f"cache entry {path} cannot be read ({err}); fix its permissions or use another cache"
+            raise ValueError(msg) from err
         except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zipfile.LargeZipFile) as err:
             self._discard(path, f"unreadable ({type(err).__name__}: {err})")
             return None
@@ -193,6 +199,7 @@ class SampleCache:
                 (np.savez_compressed if self.compress else np.savez)(f, **payload)
                 f.flush()
                 os.fsync(f.fileno())
+            os.chmod(tmp, default_file_mode())  # mkstemp makes 0600: give entries the umask's mode
             os.replace(tmp, path)
         except BaseException:
             try:

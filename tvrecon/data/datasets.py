@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -94,6 +95,11 @@ def coerce_config(cls: type[C], value: C | Mapping[str, Any] | None) -> C:
     if unknown:
         raise ValueError(f"unknown {cls.__name__} keys {unknown}; valid keys are {sorted(names)}")
     kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
+    # `sensor.E=3` and `sensor.E=3.0` must be the same config (and cache key): an int for a float field is a float
+    hints = typing.get_type_hints(cls)
+    for k, v in kwargs.items():
+        if hints.get(k) is float and isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_):
+            kwargs[k] = float(v)
     return cls(**kwargs)
 
 

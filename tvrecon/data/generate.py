@@ -217,11 +217,14 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
 
     from tvrecon.data.presets import compose_preset
 
+    try:  # checked before the preset is built: `workers=abc` must name workers, not end in int()'s message
+        workers = int(opts["workers"]) if opts.get("workers") else None
+    except ValueError:
+        raise ValueError(f"workers must be a whole number of processes, got {opts['workers']!r}") from None
     cfg = compose_preset(opts.get("preset", "small"), overrides)
     dm = instantiate(cfg, _convert_="all")
     shard = parse_shard(opts.get("shard", "0/1"))
     splits = opts["splits"].split(",") if opts.get("splits") else dm.available_splits()
-    workers = int(opts["workers"]) if opts.get("workers") else None
     results = []
     for name in splits:
         ds = dm.make_dataset(name)

@@ -42,6 +42,10 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
     path = Path(name)
     if not path.is_file():
         raise ValueError(f"--shape must be one of {BUILTIN_SHAPES} or an existing mesh file, got {name!r}")
+    # trimesh's processing silently drops NaN vertices (leaving a hole): check the raw file like the API does
+    raw = trimesh.load(path, force="mesh", process=False)
+    if isinstance(raw, trimesh.Trimesh) and not np.isfinite(np.asarray(raw.vertices)).all():
+        raise ValueError(f"{path} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
     mesh = trimesh.load(path, force="mesh")
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path} holds no triangles")
@@ -133,7 +137,8 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
             steps=[reading.frame_steps[k] for k in pick],
             sections=sections,
         )
-        for k in pick[-min(args.ply, len(pick)) :]:
+        # pick[-0:] would be every frame: --ply 0 must write none
+        for k in pick[len(pick) - min(max(args.ply, 0), len(pick)) :]:
             normal = reading.frames[k][2].reshape(-1)
             values = torch.cat([normal, torch.zeros(reading.particles.shape[1] - H * W)])
             files[f"ply{k}"] = save_ply(reading.particles[k], out / f"pad_step{reading.frame_steps[k]:04d}.ply", values)
