@@ -17,27 +17,28 @@ N_GRID = 64
 def sphere_touches():
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
     sensor = SensorConfig(resolution=(16, 16), layers=4, spacing=0.5)
-    sim = EIPSimulator(sensor=sensor, press=PressConfig(n_grid=N_GRID, record_every=1))
+    press = PressConfig(n_grid=N_GRID, record_every=1)
+    sim = EIPSimulator(sensor=sensor, press=press)
     positions = torch.tensor([[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]])
     directions = torch.tensor([[0.0, 0.0, -1.0], [-1.0, 0.2, 0.0]])
     readings = sim.press_batch(mesh, positions, directions)
-    return mesh, sensor, readings
+    return mesh, sensor, press, readings
 
 
 def test_patch_equals_recorded_particles(sphere_touches):
-    _, sensor, readings = sphere_touches
+    _, sensor, press, readings = sphere_touches
     HW = 16 * 16
     for r in readings:
-        patch = reading_patch(r, sensor, N_GRID)
+        patch = reading_patch(r, sensor, press)
         # the last recorded frame is the reading's step: the patch is the contact layer there, to float round-off
         torch.testing.assert_close(patch.points, r.particles[-1][:HW], atol=1e-6, rtol=0)
         assert patch.mask.sum() > 50
 
 
 def test_patch_lies_on_the_surface_with_outward_normals(sphere_touches):
-    mesh, sensor, readings = sphere_touches
+    mesh, sensor, press, readings = sphere_touches
     for r in readings:
-        patch = reading_patch(r, sensor, N_GRID)
+        patch = reading_patch(r, sensor, press)
         pts = patch.points[patch.mask]
         _, dist, _ = trimesh.proximity.closest_point(mesh, pts.double().numpy())
         assert dist.max() * N_GRID < 0.5  # within half a cell of the true surface
@@ -46,14 +47,14 @@ def test_patch_lies_on_the_surface_with_outward_normals(sphere_touches):
 
 
 def test_batched_equals_single(sphere_touches):
-    _, sensor, readings = sphere_touches
+    _, sensor, press, readings = sphere_touches
     images = torch.stack([r.image for r in readings])
     pos = torch.stack([r.position for r in readings])
     dirs = torch.stack([r.direction for r in readings])
     batch = contact_patch(images, pos, dirs, sensor, N_GRID)
     assert batch.points.shape == (2, 256, 3) and batch.mask.shape == (2, 256)
     for t, r in enumerate(readings):
-        one = reading_patch(r, sensor, N_GRID)
+        one = reading_patch(r, sensor, press)
         torch.testing.assert_close(batch.points[t], one.points)
         assert torch.equal(batch.mask[t], one.mask)
 

@@ -27,7 +27,7 @@ from torch import Tensor
 from tvrecon.sim.sensor import SensorConfig, pad_lattice, sensor_frame
 
 if TYPE_CHECKING:  # press.py imports the solver; the patch needs only the reading's fields
-    from tvrecon.sim.press import TactileReading
+    from tvrecon.sim.press import PressConfig, TactileReading
 
 __all__ = ["ContactPatch", "contact_patch", "reading_patch"]
 
@@ -118,12 +118,9 @@ def contact_patch(
     return ContactPatch(points, normals, mask)
 
 
-def reading_patch(
-    reading: TactileReading,
-    sensor: SensorConfig,
-    n_grid: int,
-    domain_size: float = 1.0,
-    min_push: float = DEFAULT_MIN_PUSH,
-) -> ContactPatch:
-    """:func:`contact_patch` of one :class:`~tvrecon.sim.press.TactileReading` (points (H*W, 3), mask (H*W,))."""
-    return contact_patch(reading.image, reading.position, reading.direction, sensor, n_grid, domain_size, min_push)
+def reading_patch(reading: TactileReading, sensor: SensorConfig, press: PressConfig) -> ContactPatch:
+    """:func:`contact_patch` of one reading of a simulator with these configs (points (H*W, 3), mask (H*W,)).
+
+    Usage: ``reading_patch(sim.press(mesh, position, direction), sim.sensor, sim.cfg)``.
+    """
+    return contact_patch(reading.image, reading.position, reading.direction, sensor, press.n_grid, press.domain_size)
