@@ -56,6 +56,7 @@ PRETTY_NAMES: dict[str, str] = {
     "region_5x5": "5x5 per-pixel fusion",
     "single_stage": "Single-stage fusion",
     "touch_depth": "Ours + touch depth (extension)",
+    "touch_geometry": "Touch geometry (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
 }
@@ -70,6 +71,7 @@ ROW_ORDER: tuple[str, ...] = (
     "region_5x5",
     "single_stage",
     "touch_depth",
+    "touch_geometry",
     "smoke",
 )
 VISUAL_FOOTNOTE = "* fusion model evaluated with every touch masked out (no tactile input)."
@@ -281,7 +283,8 @@ def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
     notes = [
         "Chamfer x1e-3 with the touches' positions kept and their content replaced: another object's tactile images "
         "and directions (the next sample of the batch), or zero tactile images. A model that reads its touches does "
-        "worse with both than with its own."
+        "worse with both than with its own. A model that reads the contact patches (touch geometry) gets the other "
+        "object's patches (its surface points), and none for blank images (a blank image is the pad at rest)."
     ]
     return Table("Touch controls: does the model read the touches?", header, rows, notes)
 

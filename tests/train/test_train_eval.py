@@ -31,10 +31,17 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         return
     assert type(datamodule).__name__ == "ReconstructionDataModule"
     net = model.net
-    expected_mode = {"visual_only": "visual_only", "tactile_only": "tactile_only"}.get(experiment, "fusion")
+    expected_mode = {
+        "visual_only": "visual_only",
+        "tactile_only": "tactile_only",
+        "touch_geometry": "touch_geometry",
+    }.get(experiment, "fusion")
     assert net.mode == expected_mode
     if expected_mode == "visual_only":
         assert net.fusion is None and net.tactile is None
+        return
+    if expected_mode == "touch_geometry":  # beyond the paper: no tactile branch, the deformer reads the patches
+        assert net.reads_patches and not hasattr(net, "tactile") and model.hparams.patch_loss_weight > 0
         return
     fusion = net.fusion
     assert fusion.use_gap == (experiment != "no_gap")

@@ -43,13 +43,20 @@ from tvrecon.losses.metrics import chamfer_metric, fscore
 from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
 from tvrecon.models.projection import world_to_camera
 from tvrecon.models.refine import refine_to_patches
+from tvrecon.models.touch_geometry import patch_to_mesh_loss
 from tvrecon.viz import export_obj, render_mesh_comparison
 
 __all__ = ["TOUCH_CONTROLS", "ReconstructionModule", "gt_to_camera", "keep_first_touches"]
 
 log = logging.getLogger(__name__)
 
-MODALITY = {"fusion": "tactile_visual", "visual_only": "visual", "tactile_only": "tactile"}
+MODALITY = {
+    "fusion": "tactile_visual",
+    "visual_only": "visual",
+    "tactile_only": "tactile",
+    "touch_geometry": "tactile_visual",  # tvrecon.models.touch_geometry (reads the contact patches)
+}
+PATCH_KEYS = ("patch_points", "patch_normals", "patch_mask")
 TOUCH_CONTROLS = ("other", "blank")  # test modes with the touches' content replaced (touch_controls)
 
 
@@ -130,6 +137,9 @@ class ReconstructionModule(L.LightningModule):
             every mode with touches, and ``"visual+refine@k"`` for a visual-only model (its no-touch prediction pulled
             onto the first k touches' contact patches). Needs the samples' ``patch_points`` / ``patch_mask``.
         refine_steps: Adam steps of the refinement.
+        patch_loss_weight: weight of the training term pulling every stage's mesh through the used touches' contact
+            patches (:func:`tvrecon.models.touch_geometry.patch_to_mesh_loss`), for networks that return ``touch``
+            (the touch-geometry model); 0 disables it.
     """
 
     def __init__(
@@ -156,6 +166,7 @@ class ReconstructionModule(L.LightningModule):
         touch_controls: bool = False,
         refine: bool = False,
         refine_steps: int = 40,
+        patch_loss_weight: float = 0.0,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -201,6 +212,16 @@ class ReconstructionModule(L.LightningModule):
             if self.modality == "tactile":
                 raise ValueError("the tactile_only model needs at least one touch")
             return self.net(batch["image"], batch["K"], batch["RT"])
+        if getattr(self.net, "reads_patches", False):
+            missing = [key for key in PATCH_KEYS if key not in batch]
+            if missing:
+                raise ValueError(
+                    f"the {self.net.mode} model reads the touches' contact patches; the batch lacks {missing} "
+                    "(ReconstructionDataset provides them)"
+                )
+            patches = {key: batch[key] for key in PATCH_KEYS}
+        else:
+            patches = {}
         return self.net(
             batch["image"],
             batch["K"],
@@ -209,6 +230,7 @@ class ReconstructionModule(L.LightningModule):
             batch["positions"],
             batch["directions"],
             touch_mask,
+            **patches,
         )
 
     def compute_losses(self, out: Mapping[str, list[Tensor]], points: Tensor, normals: Tensor) -> dict[str, Tensor]:
@@ -236,6 +258,10 @@ class ReconstructionModule(L.LightningModule):
             mask = keep_first_touches(batch["touch_mask"], counts)
         out = self(batch, mask)
         terms = self.compute_losses(out, points, normals)
+        weight = float(self.hparams.get("patch_loss_weight", 0.0))
+        if weight > 0 and out.get("touch") is not None:
+            terms["patch"] = sum(patch_to_mesh_loss(v, out["touch"]) for v in out["verts"])
+            terms["loss"] = terms["loss"] + weight * terms["patch"]
         B = points.shape[0]
         for key, value in terms.items():
             self.log(f"train/{key}", value, prog_bar=True, batch_size=B)
@@ -339,7 +365,9 @@ class ReconstructionModule(L.LightningModule):
         Args:
             batch: collated sample dict with ``tactile`` (B, T, 3, h, w) and ``directions`` (B, T, 3).
             control: ``"other"`` (the next sample's tactile images and directions; None for B = 1) or ``"blank"``
-                (zero tactile images, own directions).
+                (zero tactile images, own directions). The contact patches (``patch_*``, when present) follow the
+                content: ``"other"`` takes the next sample's (its world points: the other object's surface), and
+                ``"blank"`` has no contact point (a blank image is the pad at rest: nothing touched).
         """
         out = dict(batch)
         if control == "other":
@@ -347,8 +375,13 @@ class ReconstructionModule(L.LightningModule):
                 return None
             out["tactile"] = batch["tactile"].roll(-1, dims=0)
             out["directions"] = batch["directions"].roll(-1, dims=0)
+            for key in PATCH_KEYS:
+                if key in batch:
+                    out[key] = batch[key].roll(-1, dims=0)
         elif control == "blank":
             out["tactile"] = torch.zeros_like(batch["tactile"])
+            if "patch_mask" in batch:
+                out["patch_mask"] = torch.zeros_like(batch["patch_mask"])
         else:
             raise ValueError(f"control must be one of {TOUCH_CONTROLS}, got {control!r}")
         return out
