@@ -289,6 +289,49 @@ def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
     return Table("Touch controls: does the model read the touches?", header, rows, notes)
 
 
+def _fscore(result: Mapping[str, Any], mode: str, key: str) -> float | None:
+    entry = result["modes"].get(mode)
+    return None if entry is None or key not in entry else 100.0 * float(entry[key])
+
+
+def build_fscore_table(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
+    """F-scores (%) at every evaluated threshold, per model and touch count, without and with touch refinement.
+
+    One row per model and touch count k (0 = no touch): the model's own mode with k touches (``visual`` for k = 0 and
+    for the visual-only model, ``tv@k`` or ``tactile@k`` otherwise) and its refined mode (``<mode>+refine``, or
+    ``visual+refine@k`` for the visual-only model; ``-`` when not evaluated).
+    """
+    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    keys = sorted(
+        {k for r in recon for e in r["modes"].values() for k in e if k.startswith("fscore@")},
+        key=lambda k: float(k.split("@")[1]),
+    )
+    names = [str(r["name"]) for r in recon]
+    duplicates = {n for n in names if names.count(n) > 1}
+    taus = [k.split("@")[1] for k in keys]
+    header = ["Model", "Touches"] + [f"F@{t}" for t in taus] + [f"F@{t} + touch refinement" for t in taus]
+    rows: list[list[str]] = []
+    for r in recon:
+        modes = r["modes"]
+        prefix = next((p for p in ("tv@", "tactile@") if any(m.startswith(p) for m in modes)), None)
+        for k in [0, *touches]:
+            if k == 0 or prefix is None:
+                base, refined = "visual", (None if k == 0 else f"visual+refine@{k}")
+            else:
+                base, refined = f"{prefix}{k}", f"{prefix}{k}+refine"
+            if base not in modes or (prefix is None and k > 0 and refined not in modes):
+                continue
+            row = [_label(r, duplicates), str(k)] + [_fmt(_fscore(r, base, key), 1) for key in keys]
+            row += [_fmt(None if refined is None else _fscore(r, refined, key), 1) for key in keys]
+            rows.append(row)
+    notes = [
+        "F-score (%) at distance thresholds tau (objects have max extent 1; Pixel2Mesh uses tau and 2 tau), higher "
+        "is better; 1,000 points sampled on each surface. Touches 0: the model with no touch input (for the "
+        "visual-only model the refinement rows pull its prediction onto k touches' contact patches)."
+    ]
+    return Table("F-score by touches, without and with touch refinement", header, rows, notes)
+
+
 def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
     """Table 2: classification accuracy (%) by number of touches, mean +- std over the runs (seeds).
 
@@ -322,6 +365,14 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
     if any(r["task"] == "reconstruction" for r in results):
         tables["table3"] = build_table3(results)
         tables["table4"] = build_table4(results, classes)
+        if any(
+            k.startswith("fscore@")
+            for r in results
+            if r["task"] == "reconstruction"
+            for e in r["modes"].values()
+            for k in e
+        ):
+            tables["fscore"] = build_fscore_table(results)
         if any(":" in m for r in results if r["task"] == "reconstruction" for m in r["modes"]):
             tables["touch_controls"] = build_touch_controls(results)
     if any(r["task"] == "classification" for r in results):
@@ -342,7 +393,7 @@ def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]
 
 def format_tables(tables: Mapping[str, Table]) -> str:
     """All tables as one Markdown text (Table 2, then 3, then 4, then the touch controls)."""
-    order = ["table2", "table3", "table4", "touch_controls"]
+    order = ["table2", "table3", "table4", "fscore", "touch_controls"]
     keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
     return "\n".join(tables[k].to_markdown() for k in keys)
 

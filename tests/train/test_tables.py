@@ -157,3 +157,29 @@ def test_refined_modes_get_their_own_table3_row() -> None:
     assert rows["Ours + touch refinement"][1:] == ["-", "-", "-", "11.00", "-"]
     assert rows["Ours"][1:] == ["14.00*", "-", "-", "12.50", "-"]  # the refined modes stay out of the model's row
     assert any("touch refinement" in note for note in table.notes)
+
+
+def test_fscore_table_rows_without_and_with_refinement() -> None:
+    def with_f(result: dict, values: dict[str, tuple[float, float]]) -> dict:
+        for mode, (f1, f2) in values.items():
+            result["modes"][mode].update({"fscore@0.01": f1, "fscore@0.02": f2})
+        return result
+
+    vis = with_f(
+        _recon("visual_only", "visual", {"visual": 13.5, "visual+refine@2": 12.0}, {}),
+        {"visual": (0.40, 0.70), "visual+refine@2": (0.45, 0.75)},
+    )
+    tg = with_f(
+        _recon("touch_geometry", "tactile_visual", {"visual": 14.0, "tv@2": 9.0, "tv@2+refine": 8.0}, {}),
+        {"visual": (0.35, 0.65), "tv@2": (0.5, 0.8), "tv@2+refine": (0.55, 0.85)},
+    )
+    tables = build_tables([vis, tg])
+    rows = _csv_rows(tables["fscore"].to_csv())
+    assert rows[0] == ["Model", "Touches", "F@0.01", "F@0.02", "F@0.01 + touch refinement", "F@0.02 + touch refinement"]
+    assert rows[1:] == [
+        ["Visual only (Pixel2Mesh)", "0", "40.0", "70.0", "-", "-"],
+        ["Visual only (Pixel2Mesh)", "2", "40.0", "70.0", "45.0", "75.0"],
+        ["Touch geometry (beyond the paper)", "0", "35.0", "65.0", "-", "-"],
+        ["Touch geometry (beyond the paper)", "2", "50.0", "80.0", "55.0", "85.0"],
+    ]
+    assert "fscore" not in build_tables([FULL])  # no F-scores in the results: no table
