@@ -42,7 +42,7 @@ def test_det3_matches_linalg():
 
 
 def test_stress_is_autograd_of_energy():
-    """P(F) equals dPsi/dF with Psi computed independently from singular values (eq. 3-4)."""
+    """P(F) equals dPsi/dF with Psi computed independently from singular values (paper eq. 3-4)."""
     mu, lam = lame_parameters(3.0, 0.3)
     F = _random_F(64, 0.2).requires_grad_(True)
     sigma = torch.linalg.svdvals(F)

@@ -104,7 +104,7 @@ def test_hand_velocity_and_alpha():
     solver = MLSMPM(MPMConfig(n_grid=32))
     hand = torch.tensor([0.0, 0.0, -0.2])
     state = solver.step(ParticleState.create(x, None, volume=vol), hand_velocity=hand, alpha=alpha)
-    assert torch.allclose(state.v[alpha == 0], hand.expand(int((alpha == 0).sum()), 3))  # eq. 11 with alpha = 0
+    assert torch.allclose(state.v[alpha == 0], hand.expand(int((alpha == 0).sum()), 3))  # paper eq. 8 with alpha = 0
     assert state.v[alpha == 1].abs().max() < 1e-6
     per_particle = hand.expand_as(x).clone()
     state2 = solver.step(ParticleState.create(x, None, volume=vol), hand_velocity=per_particle, alpha=alpha)

@@ -7,7 +7,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.sim.press import EIPSimulator, PressConfig, chamfer_eq13, chamfer_reaches
+from tvrecon.sim.press import EIPSimulator, PressConfig, chamfer_eq13, chamfer_reaches, terminal_chamfer
 from tvrecon.sim.sensor import SensorConfig, pad_lattice
 
 SPHERE = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
@@ -114,8 +114,8 @@ def test_batched_release_equals_sequential() -> None:
 def test_touches_stop_at_their_own_condition(sim: EIPSimulator) -> None:
     box = trimesh.creation.box(extents=(0.8, 0.8, 0.8))
     mixed = sim.press_batch([SPHERE, box], [TOP, [0, 0, 0.4]], [DOWN, DOWN], threshold=0.08)
-    # each stops at its own eq. 13 check; a curved surface bends the centred contact layer sooner than a flat face,
-    # which only changes it through the pad's lateral (Poisson) expansion
+    # each stops at its own terminal check (paper eq. 12); a curved surface bends the centred contact layer sooner
+    # than a flat face, which only changes it through the pad's lateral (Poisson) expansion
     assert mixed[0].chamfer >= 0.08 and mixed[1].chamfer >= 0.08
     assert mixed[0].steps < mixed[1].steps
 
@@ -178,12 +178,19 @@ def test_bad_meshes_and_options(sim: EIPSimulator) -> None:
         sim.press_batch([SPHERE], [TOP], [DOWN, DOWN])
 
 
-def test_chamfer_eq13_lattice_matches_kdtree() -> None:
+def test_terminal_chamfer_lattice_matches_kdtree() -> None:
     cfg = SensorConfig(resolution=(9, 7))
     x0 = pad_lattice(cfg)[:63]
     x = x0 + 0.2 * torch.randn_like(x0)
-    assert chamfer_eq13(x, x0, (9, 7, cfg.spacing)) == pytest.approx(chamfer_eq13(x, x0), rel=1e-9)
-    assert chamfer_eq13(x0 + 3.0, x0) == pytest.approx(0.0, abs=1e-9)  # translation is removed
+    assert terminal_chamfer(x, x0, (9, 7, cfg.spacing)) == pytest.approx(terminal_chamfer(x, x0), rel=1e-9)
+    assert terminal_chamfer(x0 + 3.0, x0) == pytest.approx(0.0, abs=1e-9)  # translation is removed
+
+
+def test_terminal_chamfer_deprecated_alias() -> None:
+    import tvrecon.sim
+
+    assert chamfer_eq13 is terminal_chamfer
+    assert tvrecon.sim.chamfer_eq13 is tvrecon.sim.terminal_chamfer is terminal_chamfer
 
 
 def test_gradient_matches_finite_differences() -> None:
@@ -212,13 +219,13 @@ def test_gradient_matches_finite_differences() -> None:
 
 
 def test_chamfer_reaches_agrees_with_chamfer() -> None:
-    """The bounded terminal check decides like comparing the eq. 13 chamfer, small and large deformations."""
+    """The bounded terminal check decides like comparing the terminal chamfer, small and large deformations."""
     cfg = SensorConfig(resolution=(9, 7), layers=2)
     x0 = pad_lattice(cfg)[:63].double()
     g = torch.Generator().manual_seed(3)
     for scale in (0.02, 0.1, 0.3, 0.6):
         x = x0 + scale * torch.randn(63, 3, generator=g, dtype=torch.float64)
-        value = chamfer_eq13(x, x0, (9, 7, cfg.spacing))
+        value = terminal_chamfer(x, x0, (9, 7, cfg.spacing))
         for thr in (0.5 * value, 0.999 * value, 1.001 * value, 2.0 * value):
             assert chamfer_reaches(x, x0, (9, 7, cfg.spacing), thr) == (value >= thr)
 

@@ -2,8 +2,8 @@
 
 A touch is a contact point sampled on the surface (area-weighted, optionally only where the camera sees the
 object), a press direction along the inward normal perturbed uniformly inside a cone, and a press strength (the
-simulator's stop rule: an eq. 13 chamfer ``threshold``, an indentation ``depth`` or a ``force``) drawn from a
-configured list: the paper's "different press directions and forces". `simulate_touches` runs them through
+simulator's stop rule: a terminal-chamfer (paper eq. 12) ``threshold``, an indentation ``depth`` or a ``force``)
+drawn from a configured list: the paper's "different press directions and forces". `simulate_touches` runs them through
 `EIPSimulator.press_batch`; `resize_tactile` brings raw tactile images to the model resolution with kornia.
 """
 
@@ -38,7 +38,8 @@ __all__ = [
 
 
 def _default_strengths() -> tuple[dict, ...]:
-    # eq. 13 terminal thresholds (squared grid cells per contact-layer particle) around the simulator's default
+    # terminal-chamfer thresholds (paper eq. 12; squared grid cells per contact-layer particle) around the
+    # simulator's default
     return ({"threshold": 0.025}, {"threshold": 0.05}, {"threshold": 0.1})
 
 

@@ -1,9 +1,10 @@
-"""Pixel2Mesh graph deformer (paper eq. 14-16).
+"""Pixel2Mesh graph deformer (paper eq. 13-15, which have no LaTeX labels).
 
-* ``GraphConv``: ``f_v' = W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (eq. 15-16), by default degree-normalised (mean
-  over neighbours, see ``GraphConv``). The neighbour sum is one product with a sparse CSR matrix, block-diagonal
-  over the batch (``neighbour_matrix``, built once per mesh level by ``MeshDeformer``), instead of gathering both
-  ends of every edge and ``index_add`` (``benchmarks/reference_train.py``; speed in ``benchmarks/bench_train_step.py``).
+* ``GraphConv``: ``f_v' = W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (the form of eq. 14-15), by default
+  degree-normalised (mean over neighbours, see ``GraphConv``). The neighbour sum is one product with a sparse CSR
+  matrix, block-diagonal over the batch (``neighbour_matrix``, built once per mesh level by ``MeshDeformer``),
+  instead of gathering both ends of every edge and ``index_add`` (``benchmarks/reference_train.py``; speed in
+  ``benchmarks/bench_train_step.py``).
 * ``GResBlock``: two graph convs with ReLU and a residual connection, ``(x + conv2(relu(conv1(x)))) / 2`` as in
   Pixel2Mesh.
 * ``PerceptualPooling``: vertices (camera frame) are projected with K (kornia) and each visual stage is sampled
@@ -11,7 +12,7 @@
   then the samples are concatenated. **Choice:** the paper average-pools the stages to a common size before
   concatenating them into one "perceptual feature"; sampling each stage at its own resolution and concatenating is
   the Pixel2Mesh original and keeps the fine stages sharp (same channels, same spirit).
-* ``DeformationBlock``: ``g_v = concat(f_v, x_v, proj(f_p))`` (eq. 14) -> graph conv -> G-ResNet blocks -> a hidden
+* ``DeformationBlock``: ``g_v = concat(f_v, x_v, proj(f_p))`` (eq. 13) -> graph conv -> G-ResNet blocks -> a hidden
   feature ``f_v`` for the next block and a coordinate update. **Choice:** the last graph conv predicts an offset added
   to ``x_v`` (initialised small, so an untrained deformer stays close to the ellipsoid) instead of absolute
   coordinates.
@@ -91,7 +92,7 @@ def _aggregate(matrix: Tensor, h: Tensor) -> Tensor:
 
 
 class GraphConv(nn.Module):
-    """Graph convolution ``W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (``aggregate="sum"``, eq. 15-16 as written) or
+    """Graph convolution ``W0 x_v + sum_{v' in N(v)} W1 x_v' + b`` (``aggregate="sum"``, paper eq. 14-15 as written) or
     ``W0 x_v + mean_{v' in N(v)} W1 x_v' + b`` (``aggregate="mean"``, degree-normalised as in Pixel2Mesh's code).
 
     On the near-regular ellipsoid meshes (degree 4 to 6, mostly 6) the two differ only by a rescaling of W1; the mean
@@ -177,7 +178,7 @@ class PerceptualPooling(nn.Module):
 
 
 class DeformationBlock(nn.Module):
-    """One Pixel2Mesh deformation block (eq. 14-16).
+    """One Pixel2Mesh deformation block (paper eq. 13-15).
 
     Args:
         in_features: channels of ``g_v`` = hidden of the previous block (0 for the first) + 3 + perceptual channels.
@@ -206,10 +207,10 @@ class DeformationBlock(nn.Module):
         """
         if neighbours is None:
             neighbours = neighbour_matrix(edges, verts.shape[1], self.conv_in.aggregate, verts.shape[0])
-        h = F.relu(self.conv_in(g, edges, neighbours))
+        h = F.relu(self.conv_in(g, edges, neighbours))  # paper eq. 14 (f_v^{l+1}), then the G-ResNet blocks
         for block in self.blocks:
             h = block(h, edges, neighbours)
-        return verts + self.conv_out(h, edges, neighbours), h
+        return verts + self.conv_out(h, edges, neighbours), h  # paper eq. 15 (x_v^{l+1}), as an offset
 
 
 class MeshDeformer(nn.Module):
@@ -286,7 +287,7 @@ class MeshDeformer(nn.Module):
             edges = self.template.edges(s)
             pooled = self.pool(x, K, features, image_size)  # (B, V_s, sum C)
             parts = [x, pooled] if hidden is None else [hidden, x, pooled]
-            g = torch.cat(parts, dim=-1)  # eq. 14
+            g = torch.cat(parts, dim=-1)  # paper eq. 13 (no label): g_v = concat(f_v, x_v, proj(f_p))
             neighbours = self._level_neighbours(s, B)  # one operator for all the level's convs
             new_x, hidden = block(g, x, edges, neighbours)
             out["verts_before"].append(x)

@@ -6,7 +6,7 @@ depth that a single view lacks never reaches the mesh. Here each touch enters as
 camera frame of the predicted mesh. At every deformation stage each vertex ``v`` gets, for a few length scales
 ``sigma``, the softmax-weighted (``exp(-|p - v|^2 / 2 sigma^2)``) mean offset to the patch points ``p``, their mean
 normal and a contact density ``1 - exp(-sum_p w_vp)`` (:func:`touch_features`). The features are concatenated to the
-Pixel2Mesh input ``g_v`` (eq. 14) and added, through a linear map each, before every G-ResNet block
+Pixel2Mesh input ``g_v`` (paper eq. 13) and added, through a linear map each, before every G-ResNet block
 (:class:`TouchDeformationBlock`). A training term pulls the surface through the patches
 (:func:`patch_to_mesh_loss`, ``ReconstructionModule(patch_loss_weight=...)``).
 
@@ -263,7 +263,7 @@ class TouchGeometryDeformer(MeshDeformer):
             edges = self.template.edges(s)
             pooled = self.pool(x, K, features, image_size)  # (B, V_s, sum C)
             parts = [x, pooled] if hidden is None else [hidden, x, pooled]
-            g = torch.cat(parts, dim=-1)  # eq. 14
+            g = torch.cat(parts, dim=-1)  # g_v of paper eq. 13 (see gcn.MeshDeformer)
             feats = touch_features(x, touch, self.sigmas)  # (B, V_s, 7 S)
             new_x, hidden = block(g, x, edges, self._level_neighbours(s, B), feats)
             out["verts_before"].append(x)

@@ -5,14 +5,15 @@ Public names::
     MPMConfig, ParticleState, MLSMPM, cfl_dt           # the solver contract (mpm.py)
     SphereCollider, PlaneCollider, MeshCollider          # rigid colliders (colliders.py)
     SensorConfig, sensor_frame                           # the pad (sensor.py)
-    PressConfig, TactileReading, EIPSimulator            # the press protocol (press.py)
+    PressConfig, TactileReading, EIPSimulator            # the press protocol, Algorithm 1 (press.py)
+    terminal_chamfer                                     # its terminal check, paper eq. 12 (press.py)
     ContactPatch, contact_patch, reading_patch           # a touch mapped back to 3D world points (contact.py)
 """
 
 from tvrecon.sim.colliders import MeshCollider, PlaneCollider, SphereCollider
 from tvrecon.sim.contact import ContactPatch, contact_patch, reading_patch
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
-from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading, chamfer_eq13
+from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading, chamfer_eq13, terminal_chamfer
 from tvrecon.sim.sensor import SensorConfig, alpha_profile, pad_lattice, sensor_frame
 
 __all__ = [
@@ -31,7 +32,8 @@ __all__ = [
     "TactileReading",
     "alpha_profile",
     "cfl_dt",
-    "chamfer_eq13",
+    "chamfer_eq13",  # deprecated alias of terminal_chamfer
     "pad_lattice",
     "sensor_frame",
+    "terminal_chamfer",
 ]

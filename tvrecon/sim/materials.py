@@ -1,4 +1,4 @@
-"""Fixed-corotated elasticity (paper eq. 3-4) and the 3x3 polar decomposition it needs.
+"""Fixed-corotated elasticity (paper eq. 2-4) and the 3x3 polar decomposition it needs.
 
 All functions are batched over a leading particle dimension P, work in float32 or float64 on any device, and are
 differentiable by autograd (E and nu may be python floats or 0-dim tensors that require grad).
@@ -25,7 +25,7 @@ __all__ = [
 
 
 def lame_parameters(E: float | Tensor, nu: float | Tensor) -> tuple[float | Tensor, float | Tensor]:
-    """Lamé parameters ``mu = E / (2 (1 + nu))``, ``lambda = E nu / ((1 + nu)(1 - 2 nu))`` (paper eq. 3).
+    """Lamé parameters ``mu = E / (2 (1 + nu))``, ``lambda = E nu / ((1 + nu)(1 - 2 nu))`` (paper, after eq. 3).
 
     Args:
         E: Young's modulus, > 0 (python float or 0-dim tensor, may require grad).
@@ -80,7 +80,7 @@ def cofactor3(F: Tensor) -> Tensor:
 
 
 def det3(F: Tensor) -> Tensor:
-    """Analytic determinant of a batch of 3x3 matrices.
+    """Analytic determinant of a batch of 3x3 matrices (``J_p = det(F_p)``: paper eq. 2, no LaTeX label).
 
     Args:
         F: (P, 3, 3) float tensor.
@@ -146,7 +146,7 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
 
 
 def fixed_corotated_energy(F: Tensor, mu: float | Tensor, lam: float | Tensor) -> Tensor:
-    """Fixed-corotated energy density ``mu sum_i (sigma_i - 1)^2 + lam / 2 (J - 1)^2`` (paper eq. 3).
+    """Fixed-corotated energy density ``mu sum_i (sigma_i - 1)^2 + lam / 2 (J - 1)^2`` (paper eq. 3, eq:phi).
 
     Uses ``sum_i (sigma_i - 1)^2 = |F - R|_F^2``.
 
@@ -164,7 +164,7 @@ def fixed_corotated_energy(F: Tensor, mu: float | Tensor, lam: float | Tensor) -
 
 
 def fixed_corotated_stress(F: Tensor, mu: float | Tensor, lam: float | Tensor, R: Tensor | None = None) -> Tensor:
-    """First Piola-Kirchhoff stress ``P = 2 mu (F - R) + lam (J - 1) J F^-T`` (paper eq. 4).
+    """First Piola-Kirchhoff stress ``P = 2 mu (F - R) + lam (J - 1) J F^-T`` (paper eq. 4, eq:PK).
 
     Args:
         F: (P, 3, 3) deformation gradients (non-singular).
@@ -183,7 +183,7 @@ def fixed_corotated_stress(F: Tensor, mu: float | Tensor, lam: float | Tensor, R
 
 
 def fixed_corotated_kirchhoff(F: Tensor, mu: float | Tensor, lam: float | Tensor, R: Tensor | None = None) -> Tensor:
-    """Kirchhoff stress ``P(F) F^T = 2 mu (F - R) F^T + lam (J - 1) J I`` used by the MLS-MPM scatter (eq. 6).
+    """Kirchhoff stress ``P(F) F^T = 2 mu (F - R) F^T + lam (J - 1) J I`` used by the MLS-MPM scatter (paper eq. 6).
 
     Algebraically identical to ``fixed_corotated_stress(F) @ F.mT`` but needs no inverse.
 

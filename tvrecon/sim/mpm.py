@@ -1,4 +1,4 @@
-"""MLS-MPM solver (Hu et al. 2018; paper eq. 5-12) on a sparse local grid, in pure torch.
+"""MLS-MPM solver (Hu et al. 2018; paper eq. 5-11, the loop body of Algorithm 1) on a sparse local grid, in torch.
 
 Conventions (the simulator contract of DESIGN.md): domain ``[0, 1)^3``, ``dx = 1 / n_grid``, node ``I`` at ``I dx``;
 quadratic B-spline weights with ``base = floor(x / dx - 0.5)``, ``fx = x / dx - base``, 27 nodes per particle.
@@ -78,7 +78,7 @@ class ParticleState:
 
     x: (P, 3) float positions (domain units, nominally in [0, 1)^3).
     v: (P, 3) velocities.
-    C: (P, 3, 3) affine velocity field (APIC / MLS, paper eq. 10).
+    C: (P, 3, 3) affine velocity field (APIC / MLS, updated by paper eq. 9).
     F: (P, 3, 3) deformation gradient (paper eq. 1).
     volume: (P,) initial volume V0.
     mass: (P,) mass rho * V0.
@@ -171,7 +171,7 @@ def _offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
 
 
 class MLSMPM:
-    """MLS-MPM stepper implementing the simulator contract (paper eq. 5-12).
+    """MLS-MPM stepper implementing the simulator contract (paper eq. 5-11).
 
     Args:
         cfg: solver config.
@@ -231,8 +231,8 @@ class MLSMPM:
         Args:
             state: particle state (P particles, B scenes).
             collider: None, one collider for every scene, or a sequence of B colliders (None entries allowed).
-            hand_velocity: (3,) or (P, 3) robot-hand velocity v_r of eq. 11 (None = zero).
-            alpha: (P,) weights in [0, 1] of eq. 11 (1 = follow the grid, 0 = follow the hand; None = all ones).
+            hand_velocity: (3,) or (P, 3) robot-hand velocity v_r of paper eq. 8 (None = zero).
+            alpha: (P,) weights alpha_p of paper eq. 8 (1 = follow the grid, 0 = follow the hand; None = all ones).
 
         Returns:
             The new ParticleState (same batch, volume and mass tensors).
@@ -310,7 +310,8 @@ class MLSMPM:
         w = (wa[0][:, None, None] * wa[1][None, :, None] * wa[2][None, None, :]).reshape(27, P)  # o = (i, j, k)
         n_nodes = B * D[0] * D[1] * D[2]
 
-        # ---- stress (eq. 4) and the affine momentum matrix A = m C - (4 dt V0 / dx^2) P F^T (eq. 6)
+        # ---- stress P F^T (paper eq. 4, eq:PK; materials.py) and the affine momentum matrix
+        # A = m C - gamma P F^T, gamma = 4 dt V0 / dx^2: the particle term of paper eq. 6 (eq:momentum)
         R = polar_decomposition(F)
         tau = fixed_corotated_kirchhoff(F, self.mu, self.lam, R)  # (P, 3, 3) = P(F) F^T
         m = state.mass
@@ -325,8 +326,9 @@ class MLSMPM:
             0,
         )  # (4, 4, P): M[c, j] with [1, o] weights j
 
-        # ---- P2G (eq. 5-6): ONE scatter of each particle's whole 4 x 27 stencil onto its base node (P columns of
-        # 108), then the 27 stencil offsets are summed by shifting along the node axis, k then j then i (9 shifts).
+        # ---- P2G, paper eq. 5 (eq:mass) and eq. 6 (eq:momentum): ONE scatter of each particle's whole 4 x 27
+        # stencil onto its base node (P columns of 108), then the 27 stencil offsets are summed by shifting along the
+        # node axis, k then j then i (9 shifts).
         S0, S1 = D[1] * D[2], D[2]
         chunk = self._chunk(P)
         if chunk >= P:
@@ -344,7 +346,8 @@ class MLSMPM:
         grid = U[:, 0] + _shift(U[:, 1], S0) + _shift(U[:, 2], 2 * S0)  # (4, N): mass, momentum
         gm = grid[0]
         has_mass = gm > 0
-        gv = (grid[1:] / torch.where(has_mass, gm, torch.ones_like(gm))).T  # (N, 3), eq. 7 (zero where m = 0)
+        # paper eq. 7 (eq:grid_velocity), zero where m = 0
+        gv = (grid[1:] / torch.where(has_mass, gm, torch.ones_like(gm))).T  # (N, 3)
 
         # ---- grid operations: damping, colliders (momentum removed -> force)
         if self.cfg.damping > 0:
@@ -358,7 +361,7 @@ class MLSMPM:
                 f"{_FIX_HINT}"
             )
 
-        # ---- G2P (eq. 11-14): table H[node, c, o] = v_c(node + offset_o) from 9 shifts; one row gather per particle
+        # ---- G2P (paper eq. 8-11): table H[node, c, o] = v_c(node + offset_o) from 9 shifts; a row gather per particle
         gvc = gv.T  # (3, N)
         K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
         K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
@@ -374,14 +377,16 @@ class MLSMPM:
                 vg = H.index_select(1, lin[sl]).view(3, 27, -1).mul_(w[:, sl])
                 torch.matmul(o_aug_t.T, vg, out=S[:, :, sl])
         v_pic = S[:, 0].T  # (P, 3)
-        C_new = (4.0 * inv_dx) * (S[:, 1:].permute(2, 0, 1) - v_pic[:, :, None] * fx[:, None, :])  # eq. 12
+        # paper eq. 9 (eq:particle_c), summing the grid velocities v'_i as in Hu et al. 2018 (the paper's v_p^(n+1)
+        # inside the sum would make C vanish: sum_i w_ip (x_i - x_p) = 0)
+        C_new = (4.0 * inv_dx) * (S[:, 1:].permute(2, 0, 1) - v_pic[:, :, None] * fx[:, None, :])
         if alpha is None:  # alpha = 1 everywhere: the hand velocity has no weight
             v_new = v_pic
         else:
             hv = torch.zeros(3, dtype=dtype, device=device) if hand_velocity is None else hand_velocity
-            v_new = alpha[:, None] * v_pic + (1.0 - alpha[:, None]) * hv  # eq. 11
-        x_new = x + dt * v_new  # eq. 13
-        F_new = F + dt * torch.matmul(C_new, F)  # eq. 14: (I + dt C) F
+            v_new = alpha[:, None] * v_pic + (1.0 - alpha[:, None]) * hv  # paper eq. 8 (eq:particle_v)
+        x_new = x + dt * v_new  # paper eq. 10 (eq:particle_x)
+        F_new = F + dt * torch.matmul(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
 
     def _chunk(self, P: int) -> int:

@@ -12,8 +12,8 @@ press axis the highest point of the object under the pad's footprint (found by r
 (the touch plane lies half-way between grid node planes, see ``_touch_z``)
 
 Stop rules (checked after every step; the first rule that is configured decides, in this order):
-``depth`` (indentation past first contact, cells) > ``force`` (normal contact force) > ``threshold`` (paper
-eq. 13 chamfer between the centred contact layer now and at rest) ; the hand never travels more than
+``depth`` (indentation past first contact, cells) > ``force`` (normal contact force) > ``threshold`` (the
+terminal check of Algorithm 1, :func:`terminal_chamfer`) ; the hand never travels more than
 ``gap + max_depth`` cells (or ``max_steps`` steps).
 """
 
@@ -35,7 +35,7 @@ from tvrecon.sim import colliders as _colliders
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
 from tvrecon.sim.sensor import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice, sensor_frame
 
-#: Default eq. 13 terminal threshold, in squared grid cells per contact-layer particle (see :func:`chamfer_eq13`).
+#: Default terminal threshold, in squared grid cells per contact-layer particle (see :func:`terminal_chamfer`).
 DEFAULT_THRESHOLD = 0.05
 
 
@@ -52,7 +52,7 @@ class PressConfig:
             step already touches (no approach steps). Below 1.0 the pad starts in grid contact.
         speed: hand speed v_r in domain units / s; None -> ``speed_fraction`` * elastic (P-)wave speed.
         speed_fraction: fraction of the P-wave speed sqrt((lambda + 2 mu) / rho) used when ``speed`` is None.
-        threshold: eq. 13 chamfer threshold (squared cells per contact particle); the default stop rule.
+        threshold: :func:`terminal_chamfer` threshold (squared cells per contact particle); the default stop rule.
         depth: stop at this indentation past first contact (cells); overrides ``force`` and ``threshold``.
         force: stop when the normal contact force reaches this (simulation units); overrides ``threshold``.
         max_depth: the hand never travels more than ``gap + max_depth`` cells (also bounds the collider region).
@@ -120,7 +120,7 @@ class TactileReading:
         direction: (3,) float32 unit press direction in world coordinates.
         steps: press steps simulated.
         depth: indentation past first contact (hand travel minus gap), in cells, >= 0.
-        chamfer: eq. 13 chamfer of the contact layer at the reading (squared cells per particle).
+        chamfer: :func:`terminal_chamfer` of the contact layer at the reading (squared cells per particle).
         force: (3,) float32 contact force on the pad in world axes (simulation units), at the last press step.
         contact: whether the object ever pushed on the pad.
         frame: (3, 3) float32 sensor frame R (columns e_x, e_y, e_z in world), world = R @ local.
@@ -147,8 +147,8 @@ class TactileReading:
     particles: Tensor | None = None
 
 
-def chamfer_eq13(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | None = None) -> float:
-    """Paper eq. 13 between the centred contact layer now and at rest, averaged over the layer.
+def terminal_chamfer(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | None = None) -> float:
+    """Terminal check of Algorithm 1, paper eq. 12 (eq:chamfer): the centred contact layer now vs at rest.
 
     ``l = mean_p min_q |x^_p - x^0_q|^2 + mean_q min_p |x^_p - x^0_q|^2`` with ``x^ = x - mean(x)``; the paper sums,
     we average (divide by |S|) so the threshold does not depend on the tactile resolution. Not differentiable
@@ -176,13 +176,17 @@ def chamfer_eq13(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | None =
     return float(d_ab2.mean() + (d_ba**2).mean())
 
 
+#: Deprecated alias of :func:`terminal_chamfer` (same object; the paper numbers the equation 12, not 13).
+chamfer_eq13 = terminal_chamfer
+
+
 def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], threshold: float) -> bool:
-    """Whether ``chamfer_eq13(x, x0, lattice) >= threshold``, usually without a k-d tree.
+    """Whether ``terminal_chamfer(x, x0, lattice) >= threshold``, usually without a k-d tree.
 
     The second chamfer term (rest lattice -> nearest particle) is at most the mean squared distance of each rest
     point to *its own* particle (same index, both centred), so when the exact first term plus that bound stays
     below the threshold the answer is False; only otherwise is the exact value computed. Same result as comparing
-    :func:`chamfer_eq13`, at a fraction of the cost per step.
+    :func:`terminal_chamfer`, at a fraction of the cost per step.
 
     Args:
         x: (N, 3) contact layer now, in cells. x0: (N, 3) planar rest lattice, in cells.
@@ -197,7 +201,7 @@ def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], thre
     upper = float(d_ab2.mean() + ((a - b) ** 2).sum(1).mean())
     if upper < float(threshold) * (1.0 - 1e-6):
         return False
-    return chamfer_eq13(x, x0, lattice) >= float(threshold)
+    return terminal_chamfer(x, x0, lattice) >= float(threshold)
 
 
 def _touch_z(dx: float) -> float:
@@ -510,7 +514,7 @@ class EIPSimulator:
                         self._record(tc, xb[b], x0_contact, dx, s, p)
                     if self._should_stop(tc, xb[b, :HW] / dx, x0_contact, (H, W, float(s.spacing)), max_steps, p):
                         img = self._image(xb[b, :HW], tc.disp, x_rest[:HW], dx, H, W)
-                        ch = chamfer_eq13(xb[b, :HW] / dx, x0_contact, (H, W, float(s.spacing)))
+                        ch = terminal_chamfer(xb[b, :HW] / dx, x0_contact, (H, W, float(s.spacing)))
                         f_world = tc.R @ force[b].cpu()
                         tc.reading = self._reading(tc, img, s, p, chamfer=ch, force=f_world, x_pad=xb[b])
                         if p.record_every and tc.steps % int(p.record_every) != 0:

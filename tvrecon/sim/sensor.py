@@ -6,7 +6,7 @@ are ordered ``(layers, H, W)`` with the contact layer first, so ``x[: H * W]`` i
 ``x[: H * W].reshape(H, W, 3)`` is a tactile image. Pixel ``(i, j)`` sits at local
 ``x = (j - (W - 1) / 2) * spacing``, ``y = (i - (H - 1) / 2) * spacing`` (in grid cells).
 
-``alpha`` (paper eq. 10, ``v_p = alpha_p * sum_i w_ip v_i + (1 - alpha_p) v_r``) blends the grid velocity with
+``alpha`` (paper eq. 8, ``v_p = alpha_p * sum_i w_ip v_i + (1 - alpha_p) v_r``) blends the grid velocity with
 the hand velocity:
 
 - ``linear`` (the paper): 1 at the contact layer falling linearly to 0 at the back layer (the hand). Positions
@@ -45,7 +45,7 @@ class SensorConfig:
         alpha_profile: ``"clamped"`` (default, returns to rest) or ``"linear"`` (the paper).
         damping: viscous damping rate of the grid velocity (``v_i *= exp(-damping * dt)``), 0 = none.
         mount_mass: mass multiplier of the hand-driven back layer (alpha = 0), modelling the rigid, heavy mount
-            the pad is glued to. The eq. 10 blend moves those particles with the hand but their F follows the grid,
+            the pad is glued to. The eq. 8 blend moves those particles with the hand but their F follows the grid,
             so with ordinary mass the body slips against them and a released pad keeps ~0.5-1 cell of offset; a
             heavy back layer pins the grid velocity at the back to the hand (a kinematic boundary) and the pad
             returns to rest (0.02 cells). None -> 100 for ``clamped``, 1 (the paper, no mount) for ``linear``.
@@ -125,7 +125,7 @@ def pad_lattice(cfg: SensorConfig, device: torch.device | str | None = None) -> 
 
 
 def alpha_profile(cfg: SensorConfig, device: torch.device | str | None = None) -> Tensor:
-    """Per-particle alpha of paper eq. 10 (1 = follows the grid, 0 = follows the hand).
+    """Per-particle alpha_p of paper eq. 8 (eq:particle_v; 1 = follows the grid, 0 = follows the hand).
 
     Returns:
         (P,) float32 in [0, 1], same particle order as :func:`pad_lattice`.
