@@ -28,6 +28,9 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
     if experiment == "classify":
         assert type(datamodule).__name__ == "ClassificationDataModule"
         assert model.num_touches == cfg.data.num_touches == model.net.num_touches
+        train, test = datamodule.make_dataset("train"), datamodule.make_dataset("test")
+        assert train.redraw_touches and not test.redraw_touches  # fresh touches per training epoch only
+        assert not train.rotate_touches  # the orientation augmentation is off until measured to help
         return
     assert type(datamodule).__name__ == "ReconstructionDataModule"
     net = model.net

@@ -180,10 +180,33 @@ class ClassificationDataModule(_GeneratedDataModule):
 
     Split mappings need ``num_objects``; ``touches_per_object`` and ``num_touches`` (N) are shared arguments.
     Batch: tactile (B,N,3,h,w), touch_mask (B,N) bool, positions (B,N,3), directions (B,N,3), label (B,) int64.
+
+    The ``train`` split draws its N touches afresh every epoch (``redraw_touches`` defaults to True there and to
+    False in ``val`` / ``test``; a split mapping may set it), see :mod:`tvrecon.data.touch_select`. The epoch reaches
+    the dataset from :meth:`~tvrecon.models.lit_cls.ClassificationModule.on_train_epoch_start`, which needs workers
+    re-created every epoch: ``persistent_workers=True`` with a redrawing train split raises ValueError.
+    ``rotate_touches`` (shared, default False) turns on the orientation augmentation of the training draws.
     """
 
     dataset_cls = TactileClassificationDataset
     size_key = "num_objects"
+
+    def _split_args(self, name: str) -> dict[str, Any]:
+        args = super()._split_args(name)
+        if "redraw_touches" not in (self.splits.get(name) or {}) and "redraw_touches" not in self.dataset_kwargs:
+            args["redraw_touches"] = name == "train"
+        return args
+
+    def train_dataloader(self) -> DataLoader:
+        if "train" not in self.datasets:
+            self.setup(None)
+        if self.persistent_workers and getattr(self.datasets.get("train"), "redraw_touches", False):
+            raise ValueError(
+                "persistent_workers=True keeps the dataset copy of the first epoch in the workers, so the training "
+                "split would show the same touches every epoch: set data.persistent_workers=false (workers are then "
+                "re-created each epoch and see the new epoch's draw) or data.train.redraw_touches=false"
+            )
+        return super().train_dataloader()
 
     @property
     def num_touches(self) -> int:

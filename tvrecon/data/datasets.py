@@ -37,6 +37,8 @@ from torch.utils.data import Dataset
 from tvrecon.data.cache import SampleCache
 from tvrecon.data.render import render_view, sample_camera
 from tvrecon.data.shapes import ObjectLibrary
+from tvrecon.data.tactile_augment import orient_touches
+from tvrecon.data.touch_select import TouchSelector
 from tvrecon.data.touches import TouchPolicy, resize_tactile, sample_touches, simulate_touches
 from tvrecon.sim.contact import contact_patch
 from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
@@ -338,7 +340,8 @@ class ReconstructionDataset(GeneratedDataset):
     Item ``i`` has ``touches_per_item = max_touches`` touches cached; the sample uses the first T of them with
     T drawn uniformly in ``[min_touches, max_touches]`` from ``(seed, split, i)``, or T = ``num_touches`` for every
     sample when that is set (evaluation with 2, 5, 10 touches: the first 2 touches are the same in all three, and
-    the cache of the split is shared).
+    the cache of the split is shared). Which touches every path uses is summarised in
+    :mod:`tvrecon.data.touch_select`.
 
     Sample (INTERFACES.md section 2):
         image (3,H,W) float32 [0,1]; K (3,3) float32; RT (3,4) float32 world->camera;
@@ -481,9 +484,19 @@ class ReconstructionDataset(GeneratedDataset):
 class TactileClassificationDataset(GeneratedDataset):
     """Tactile classification samples: N touches (different press directions) of one object and its class.
 
-    Item ``i`` caches ``touches_per_object`` (M) touches; the sample picks ``num_touches`` (N <= M) of them without
-    replacement, seeded by ``(seed, split, i)`` (paper section 4.2: "randomly choose N tactile images which are
-    yielded by different press directions to the same object").
+    Item ``i`` caches ``touches_per_object`` (M) touches; which N of them a sample shows is decided by a
+    :class:`~tvrecon.data.touch_select.TouchSelector` (the one owner of that choice, see
+    :mod:`tvrecon.data.touch_select`) from the item's load seed of ``(seed, split, i)``:
+
+    - ``redraw_touches=True`` (the training split of :class:`~tvrecon.data.datamodule.ClassificationDataModule`):
+      N touches drawn afresh at every epoch, in random order (paper section 4.2: "during each training iteration,
+      we randomly choose N tactile images"); the epoch comes from :meth:`set_epoch`;
+    - ``redraw_touches=False`` (default; validation and test): a fixed seeded subset, sorted, the same every epoch.
+
+    ``rotate_touches=True`` (training draws only) also turns each touch's image by a random multiple of 90 degrees
+    about the pad normal and mirrors it with probability 1/2, shear channels transformed with the grid
+    (:func:`tvrecon.data.tactile_augment.rotate_tactile`; the pad's in-plane orientation is arbitrary). Positions and
+    directions are left as they are. Needs square tactile images.
 
     Sample: tactile (N,3,h,w) float32 (scaled grid cells), touch_mask (N,) bool (all True), positions (N,3),
     directions (N,3) float32 world, label int64.
@@ -492,11 +505,21 @@ class TactileClassificationDataset(GeneratedDataset):
         num_objects: number of objects (items).
         touches_per_object: M touches simulated and cached per object.
         num_touches: N touches per sample (1 <= N <= M).
+        redraw_touches: draw the N touches afresh per epoch (training) instead of a fixed subset.
+        rotate_touches: random quarter turns and mirroring of each drawn touch (only with ``redraw_touches``).
     """
 
     kind = "classification"
 
-    def __init__(self, num_objects: int, touches_per_object: int = 10, num_touches: int = 1, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        num_objects: int,
+        touches_per_object: int = 10,
+        num_touches: int = 1,
+        redraw_touches: bool = False,
+        rotate_touches: bool = False,
+        **kwargs: Any,
+    ) -> None:
         if not 1 <= int(num_touches) <= int(touches_per_object):
             raise ValueError(
                 f"need 1 <= num_touches <= touches_per_object, got num_touches={num_touches}, "
@@ -506,6 +529,22 @@ class TactileClassificationDataset(GeneratedDataset):
             raise ValueError("use touches_per_object, not touches_per_item, for TactileClassificationDataset")
         super().__init__(num_items=num_objects, touches_per_item=int(touches_per_object), **kwargs)
         self.num_touches = int(num_touches)
+        self.selector = TouchSelector(self.touches_per_item, self.num_touches, redraw=bool(redraw_touches))
+        self.rotate_touches = bool(rotate_touches)
+        if self.rotate_touches and self.tactile_size[0] != self.tactile_size[1]:
+            raise ValueError(f"rotate_touches needs square tactile images, got tactile_size={self.tactile_size}")
+        self.epoch = 0
+
+    @property
+    def redraw_touches(self) -> bool:
+        """True when the touches of a sample change with the epoch (the training draw)."""
+        return self.selector.redraw
+
+    def set_epoch(self, epoch: int) -> None:
+        """Set the epoch of the training draw (called by :func:`tvrecon.data.touch_select.set_loader_epoch`)."""
+        if int(epoch) < 0:
+            raise ValueError(f"epoch must be >= 0, got {epoch}")
+        self.epoch = int(epoch)
 
     def generate(self, index: int) -> dict[str, np.ndarray]:
         index = self._check_index(index)
@@ -513,17 +552,21 @@ class TactileClassificationDataset(GeneratedDataset):
         out["label"] = np.asarray(self.label_of(index), dtype=np.int64)
         return out
 
-    def touch_indices(self, index: int) -> np.ndarray:
-        """(N,) int64 indices of the cached touches used by item ``index``."""
-        rng = np.random.default_rng(self.seeds(index)[3])
-        return np.sort(rng.choice(self.touches_per_item, size=self.num_touches, replace=False)).astype(np.int64)
+    def touch_indices(self, index: int, epoch: int | None = None) -> np.ndarray:
+        """(N,) int64 indices of the cached touches item ``index`` uses at ``epoch`` (default: the current one)."""
+        epoch = self.epoch if epoch is None else int(epoch)
+        return self.selector.indices(self.seeds(index)[3], epoch)
 
     def __getitem__(self, index: int) -> dict[str, Tensor]:
         index = self._check_index(index)
         raw, _ = self.raw(index)
         sel = self.touch_indices(index)
+        tactile = self._tactile(raw["tactile"][sel])
+        if self.rotate_touches and self.redraw_touches:
+            k, mirror = self.selector.orientations(self.seeds(index)[3], self.epoch)
+            tactile = orient_touches(tactile, k, mirror)
         return {
-            "tactile": self._tactile(raw["tactile"][sel]),
+            "tactile": tactile,
             "touch_mask": torch.ones(self.num_touches, dtype=torch.bool),
             "positions": torch.from_numpy(raw["positions"][sel]),
             "directions": torch.from_numpy(raw["directions"][sel]),

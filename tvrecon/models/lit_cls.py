@@ -1,8 +1,12 @@
 """LightningModule of the N-touch tactile classifier (paper section 4.2, Table 2).
 
-Per training sample, ``num_touches`` of the object's valid touches are drawn at random (the paper: "during each
-training iteration, we randomly choose N tactile images"); validation and test take the first N valid touches so
-the numbers are reproducible. The network sees them stacked as ``(B, N, 3, h, w)``.
+Which touches a sample shows is decided by the dataset (:mod:`tvrecon.data.touch_select`, the one owner of that
+choice): the training split draws N of the object's cached touches afresh at every epoch, in random order (the
+paper: "during each training iteration, we randomly choose N tactile images"), validation and test serve a fixed
+subset. This module keeps the first ``num_touches`` valid touches it is given (a uniform random subset in training,
+since the draw is in random order) and draws nothing itself; at every ``on_train_epoch_start`` it passes the epoch
+to the training datasets (:func:`~tvrecon.data.touch_select.set_loader_epoch`). The network sees the touches
+stacked as ``(B, N, 3, h, w)``.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from tvrecon.data.touch_select import set_loader_epoch
 from tvrecon.models.optim import configure_optimizers
 
 __all__ = ["ClassificationModule", "select_touches"]
@@ -111,8 +116,12 @@ class ClassificationModule(L.LightningModule):
         """Args: tactile (B, N, 3, h, w) float. Returns logits (B, num_classes) float."""
         return self.net(tactile)
 
+    def on_train_epoch_start(self) -> None:
+        """Give the training datasets the epoch of their touch draw (before Lightning builds the epoch's iterator)."""
+        set_loader_epoch(self.trainer.train_dataloader, self.current_epoch)
+
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
-        x = select_touches(batch["tactile"], batch["touch_mask"], self.num_touches, random=True)
+        x = select_touches(batch["tactile"], batch["touch_mask"], self.num_touches)
         if self.touch_sampling == "random":
             n = int(torch.randint(1, self.num_touches + 1, ()))
             x = x[:, :n]

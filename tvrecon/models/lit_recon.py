@@ -3,8 +3,9 @@
 Training: the ground-truth surface points and normals (world frame) are mapped to the camera frame with the
 view's RT, the number of touches is drawn per sample (k ~ U{min_touches..max_touches}, later touches masked out;
 the paper's "1 to 10 tactile images per iteration"; this is the only draw: the reconstruction data presets serve
-all ``max_touches`` cached touches, so training sees k uniform rather than the smaller min of two draws), and the
-Pixel2Mesh loss terms of every deformation stage are weighted by the ``loss_weights`` mapping and summed.
+all ``max_touches`` cached touches, so training sees k uniform rather than the smaller min of two draws; which
+touches every path uses is summarised in :mod:`tvrecon.data.touch_select`), and the Pixel2Mesh loss terms of
+every deformation stage are weighted by the ``loss_weights`` mapping and summed.
 Each term is logged (progress bar) as ``train/<term>``.
 
 Validation logs ``val/loss`` and ``val/chamfer`` (the x1e-3 metric with every available touch) and renders the
