@@ -30,6 +30,7 @@ from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
 from tvrecon.atomic import atomic_write_text  # noqa: E402
+from tvrecon.checkpoint import check_checkpoint  # noqa: E402
 from tvrecon.tables import build_tables, format_tables, write_tables  # noqa: E402
 from tvrecon.viz import plot_loss_curves  # noqa: E402
 
@@ -107,6 +108,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             f"ckpt_path={ckpt_path} does not exist: pass the checkpoints/last.ckpt of an earlier run to resume, "
             f"or drop ckpt_path to start from scratch"
         )
+    if ckpt_path is not None:
+        check_checkpoint(ckpt_path)  # a truncated file is named here, not in torch's "central directory" error
     if cfg.get("torch_threads"):
         torch.set_num_threads(int(cfg.torch_threads))
     if cfg.get("seed") is not None:

@@ -1,0 +1,87 @@
+"""Faults around training and evaluation (issue 14): corrupt checkpoints, signals, degenerate epoch counts."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import hydra
+import pytest
+import torch
+from conftest import compose_config
+from omegaconf import OmegaConf, open_dict
+
+from tvrecon.checkpoint import CorruptCheckpointError, check_checkpoint
+
+
+def _synthetic_cfg(overrides: list[str], out: Path):
+    cfg = compose_config("train", ["experiment=smoke", *overrides], out)
+    with open_dict(cfg):
+        cfg.data = OmegaConf.create({"_target_": "synthetic.SyntheticReconDataModule", "batch_size": 2, "n": 2})
+        cfg.model.metric_points = 100
+        cfg.model.eval_touches = [2]
+        cfg.model.export = False
+        cfg.model.refine = False
+    return cfg
+
+
+def _fake_run(run: Path, truncate: bool = False) -> Path:
+    """A train.py run folder (``.hydra/config.yaml`` + ``checkpoints/last.ckpt``) of an untrained smoke model."""
+    cfg = _synthetic_cfg([], run)
+    (run / ".hydra").mkdir(parents=True)
+    OmegaConf.save(cfg, run / ".hydra" / "config.yaml")
+    model = hydra.utils.instantiate(cfg.model)
+    ckpt = run / "checkpoints" / "last.ckpt"
+    ckpt.parent.mkdir()
+    torch.save({"state_dict": model.state_dict()}, ckpt)
+    if truncate:
+        data = ckpt.read_bytes()
+        ckpt.write_bytes(data[: len(data) // 2])
+    return ckpt
+
+
+def test_check_checkpoint_names_truncated_and_damaged_files(tmp_path: Path) -> None:
+    path = tmp_path / "c.ckpt"
+    torch.save({"state_dict": {"w": torch.randn(4000)}}, path)
+    assert check_checkpoint(path) == path
+    data = path.read_bytes()
+    (tmp_path / "t.ckpt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CorruptCheckpointError, match=r"checkpoint .*t\.ckpt is truncated or corrupt"):
+        check_checkpoint(tmp_path / "t.ckpt")
+    damaged = bytearray(data)
+    damaged[len(data) // 2 : len(data) // 2 + 64] = b"x" * 64  # inside the tensor data: torch.load would accept it
+    (tmp_path / "d.ckpt").write_bytes(bytes(damaged))
+    with pytest.raises(CorruptCheckpointError, match=r"d\.ckpt .*CRC"):
+        check_checkpoint(tmp_path / "d.ckpt")
+
+
+def test_eval_sweep_skips_a_corrupt_checkpoint_and_prints_the_other_tables(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from eval import evaluate
+
+    sweep = tmp_path / "sweep"
+    good = _fake_run(sweep / "0_smoke")
+    bad = _fake_run(sweep / "1_smoke", truncate=True)
+    ev = compose_config(
+        "eval", [f"run_dir={sweep}", "eval_touches=[2]", "export=false", "+trainer.limit_test_batches=1"], tmp_path
+    )
+    with caplog.at_level(logging.WARNING, logger="eval"):
+        out = evaluate(ev)
+    assert [r["checkpoint"] for r in out["results"]] == [str(good)]
+    assert out["skipped"] == [str(bad)]
+    assert str(bad) in caplog.text and "truncated or corrupt" in caplog.text
+    assert "Table 3" in capsys.readouterr().out and (tmp_path / "tables" / "table3.md").is_file()
+
+    single = compose_config("eval", [f"ckpt_path={bad}"], tmp_path / "single")
+    with pytest.raises(CorruptCheckpointError, match=rf"checkpoint {bad} is truncated or corrupt"):
+        evaluate(single)
+
+
+def test_resume_from_truncated_checkpoint_names_the_file(tmp_path: Path) -> None:
+    from train import train
+
+    bad = _fake_run(tmp_path / "old", truncate=True)
+    cfg = _synthetic_cfg([f"ckpt_path={bad}"], tmp_path / "new")
+    with pytest.raises(CorruptCheckpointError, match=rf"checkpoint {bad} is truncated"):
+        train(cfg)
