@@ -26,7 +26,7 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
-from train import fix_test_touches, report_tables, save_results  # noqa: E402
+from train import exit_on_sigterm, fix_test_touches, report_tables, save_results  # noqa: E402
 from tvrecon.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
 
 log = logging.getLogger("eval")
@@ -116,7 +116,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
     model.load_state_dict(state["state_dict"])
-    trainer.test(model=model, datamodule=datamodule)
+    with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
+        trainer.test(model=model, datamodule=datamodule)
     result = getattr(model, "test_results", None)
     if result is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")

@@ -17,6 +17,10 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +31,7 @@ import hydra  # noqa: E402
 import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
+from lightning.pytorch.utilities.exceptions import SIGTERMException  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
 from tvrecon.atomic import atomic_write_text  # noqa: E402
@@ -80,6 +85,45 @@ def _csv_metrics(trainer: L.Trainer) -> Path | None:
     return None
 
 
+def last_checkpoint(trainer: L.Trainer) -> Path | None:
+    """The newest checkpoint the trainer's ModelCheckpoint wrote (its ``last.ckpt`` when saved), None if none yet."""
+    cb = trainer.checkpoint_callback
+    if cb is None:
+        return None
+    for attr in ("last_model_path", "best_model_path"):
+        path = getattr(cb, attr, "")
+        if path and Path(path).is_file():
+            return Path(path)
+    dirpath = getattr(cb, "dirpath", None)
+    ckpts = sorted(Path(dirpath).glob("*.ckpt"), key=lambda p: p.stat().st_mtime) if dirpath else []
+    return ckpts[-1] if ckpts else None
+
+
+@contextmanager
+def exit_on_sigterm(trainer: L.Trainer, stage: str, hint: str | None = None) -> Iterator[None]:
+    """Turn Lightning's SIGTERM stop (a ``SystemExit`` with code 0) into exit status 143 and a message.
+
+    Lightning stops its loops cleanly on SIGTERM but raises ``SIGTERMException``, a ``SystemExit(None)``: the
+    process exited 0 and a script or scheduler took a killed run for a finished one. Here the run says that it was
+    terminated, at which epoch/step and what to do next (``hint``; by default the last checkpoint to resume from),
+    then exits with 128 + SIGTERM like a process killed by the signal.
+    """
+    try:
+        yield
+    except SIGTERMException:
+        if hint is None:
+            ckpt = last_checkpoint(trainer)
+            hint = (
+                f"the last checkpoint is {ckpt.resolve()}: resume with ckpt_path={ckpt.resolve()}"
+                if ckpt is not None
+                else "no checkpoint was saved before the signal: rerun from scratch"
+            )
+        msg = f"{stage} terminated by SIGTERM at epoch {trainer.current_epoch}, step {trainer.global_step}; {hint}"
+        log.error(msg)
+        print(msg, file=sys.stderr, flush=True)
+        sys.exit(128 + signal.SIGTERM)
+
+
 def fix_test_touches(data_cfg: DictConfig) -> None:
     """Give every reconstruction test sample ``max_touches`` touches (``data.test.num_touches``), in place.
 
@@ -130,7 +174,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
     if cfg.get("train"):
         log.info("Starting training")
-        trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
+        with exit_on_sigterm(trainer, "training"):
+            trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
 
     best = None
@@ -140,7 +185,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     tables = ""
     if cfg.get("test"):
         log.info("Testing %s", best or "the current weights (no best checkpoint)")
-        trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
+        hint = f"the checkpoints are kept: test {best} again with `python eval.py ckpt_path={best}`" if best else None
+        with exit_on_sigterm(trainer, "testing", hint):
+            trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
         result = getattr(model, "test_results", None)
         if result is not None and trainer.is_global_zero:

@@ -85,3 +85,33 @@ def test_resume_from_truncated_checkpoint_names_the_file(tmp_path: Path) -> None
     cfg = _synthetic_cfg([f"ckpt_path={bad}"], tmp_path / "new")
     with pytest.raises(CorruptCheckpointError, match=rf"checkpoint {bad} is truncated"):
         train(cfg)
+
+
+def test_sigterm_during_training_exits_nonzero_and_names_the_last_checkpoint(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Lightning turns SIGTERM into SystemExit(None) (exit 0, no message); train.py exits 143 naming last.ckpt."""
+    from train import train
+
+    run = tmp_path / "run"
+    overrides = ["experiment=classify", "model.num_touches=2", "model.net.num_classes=3", "trainer.max_epochs=3"]
+    overrides += ["+trainer.num_sanity_val_steps=0", "test=false", "~logger"]
+    cfg = compose_config("train", overrides, run)
+    with open_dict(cfg):  # one batch per epoch: SIGTERM in epoch 0, seen after epoch 0 wrote last.ckpt
+        cfg.data = OmegaConf.create(
+            {"_target_": "synthetic.SyntheticClassificationDataModule", "num_touches": 2, "batch_size": 3, "n": 3}
+        )
+        cfg.callbacks = OmegaConf.create({"sigterm": {"_target_": "synthetic.SigtermAtStep", "step": 1}})
+        cfg.callbacks.model_checkpoint = {
+            "_target_": "lightning.pytorch.callbacks.ModelCheckpoint",
+            "dirpath": str(run / "checkpoints"),
+            "save_last": True,
+            "save_top_k": 1,
+            "save_weights_only": True,
+        }
+    with pytest.raises(SystemExit) as exc:
+        train(cfg)
+    assert exc.value.code == 143
+    last = (run / "checkpoints" / "last.ckpt").resolve()
+    err = capsys.readouterr().err
+    assert "training terminated by SIGTERM at epoch 1," in err and f"resume with ckpt_path={last}" in err
