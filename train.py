@@ -139,6 +139,43 @@ def fix_test_touches(data_cfg: DictConfig) -> None:
         log.info("test split: every sample gets data.max_touches=%d touches", int(data_cfg.max_touches))
 
 
+def check_training_length(cfg: DictConfig) -> None:
+    """Refuse epoch counts that would report an untrained model or never reach the test.
+
+    ``trainer.max_epochs=0`` fits nothing, and the test then printed Tables 3/4 of the random initial weights under
+    the experiment's name; it is refused unless ``ckpt_path`` gives the weights (then only a warning: the checkpoint
+    is tested as it is). ``max_epochs=-1`` is Lightning's "train forever": refused unless ``trainer.max_steps`` or
+    ``trainer.max_time`` bounds the run, since without them no test or table ever comes.
+
+    Raises:
+        ValueError: naming the setting and what to pass instead.
+    """
+    trainer = cfg.get("trainer") or {}
+    if not cfg.get("train") or trainer.get("fast_dev_run") or trainer.get("max_epochs") is None:
+        return
+    max_epochs = int(trainer.max_epochs)
+    max_steps = trainer.get("max_steps")
+    bounded = trainer.get("max_time") is not None or (max_steps is not None and int(max_steps) > 0)
+    if max_epochs == 0:
+        if cfg.get("ckpt_path") is None:
+            raise ValueError(
+                "trainer.max_epochs=0 trains nothing: the test and the tables would report the untrained model as "
+                "this experiment's result. Train with trainer.max_epochs=N (N >= 1), or test a trained checkpoint "
+                "with `python eval.py ckpt_path=<run>/checkpoints/last.ckpt`"
+            )
+        log.warning(
+            "trainer.max_epochs=0: no training, the weights of ckpt_path=%s are tested as they are", cfg.ckpt_path
+        )
+    elif max_epochs == -1 and not bounded:
+        raise ValueError(
+            "trainer.max_epochs=-1 trains forever (Lightning's infinite mode), so the test and the tables never come: "
+            "give a number of epochs (trainer.max_epochs=N), or bound the run with +trainer.max_time=DD:HH:MM:SS or "
+            "+trainer.max_steps=N"
+        )
+    elif max_epochs < -1:
+        raise ValueError(f"trainer.max_epochs={max_epochs} is not a number of epochs: use N >= 1 (or -1 with a bound)")
+
+
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit then test the model described by ``cfg`` (the composed ``configs/train.yaml``).
 
@@ -146,6 +183,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ``{"metrics": {name: float}, "result": test result dict | None, "tables": str, "output_dir": str,
         "best_ckpt": str | None}``.
     """
+    check_training_length(cfg)
     ckpt_path = cfg.get("ckpt_path")
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise FileNotFoundError(

@@ -115,3 +115,24 @@ def test_sigterm_during_training_exits_nonzero_and_names_the_last_checkpoint(
     last = (run / "checkpoints" / "last.ckpt").resolve()
     err = capsys.readouterr().err
     assert "training terminated by SIGTERM at epoch 1," in err and f"resume with ckpt_path={last}" in err
+
+
+@pytest.mark.parametrize("epochs", [0, -1, -3])
+def test_untrained_or_endless_epoch_counts_are_refused(epochs: int, tmp_path: Path) -> None:
+    """max_epochs=0 printed the untrained model's tables as the experiment's; -1 trained forever without a word."""
+    from train import train
+
+    cfg = _synthetic_cfg([f"trainer.max_epochs={epochs}"], tmp_path)
+    match = {0: r"max_epochs=0 trains nothing.*eval\.py ckpt_path=", -1: "trains forever.*max_time", -3: "N >= 1"}
+    with pytest.raises(ValueError, match=match[epochs]):
+        train(cfg)
+    assert not (tmp_path / "metrics.json").exists()
+
+
+def test_bounded_or_resumed_epoch_counts_pass_the_check(tmp_path: Path) -> None:
+    from train import check_training_length
+
+    check_training_length(_synthetic_cfg(["trainer.max_epochs=-1", "+trainer.max_time=00:00:01:00"], tmp_path))
+    check_training_length(_synthetic_cfg(["trainer.max_epochs=-1", "+trainer.max_steps=10"], tmp_path))
+    check_training_length(_synthetic_cfg(["trainer.max_epochs=0", f"ckpt_path={tmp_path / 'x.ckpt'}"], tmp_path))
+    check_training_length(_synthetic_cfg(["trainer.max_epochs=0", "train=false"], tmp_path))
