@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import io
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -91,8 +92,36 @@ def to_sensor_cells(points: torch.Tensor, reading: TactileReading, press: PressC
     return local.numpy()
 
 
+def check_outputs(args: argparse.Namespace) -> Path:
+    """Check the output options before the simulation runs (it takes minutes); create ``--out``. Returns it.
+
+    Raises:
+        ValueError: ``--out`` is a file, under a file, or not writable; ``--frames`` < 1 (deformation.png and the
+            .ply files need a frame) or ``--ply`` < 0.
+    """
+    if args.frames < 1:
+        raise ValueError(f"--frames must be >= 1 (frames drawn in deformation.png), got {args.frames}")
+    if args.ply < 0:
+        raise ValueError(f"--ply must be >= 0 (pad .ply files of the last frames; 0 writes none), got {args.ply}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file: give a folder (it will hold tactile.png, reading.npz, ...)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):  # the real test: permissions, read-only file systems, quotas
+            pass
+    except (FileExistsError, NotADirectoryError) as err:
+        raise ValueError(f"--out {out} cannot be a folder: a part of its path is a file ({err})") from err
+    except OSError as err:
+        raise ValueError(
+            f"--out {out} is not writable ({err.strerror or err}): choose a folder you can write to"
+        ) from err
+    return out
+
+
 def run_press(args: argparse.Namespace) -> dict[str, Path]:
     """Run one press from parsed CLI arguments and write its files; returns {name: path}."""
+    out = check_outputs(args)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     mesh = load_shape(args.shape, seed=args.seed)
@@ -113,8 +142,6 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     )
     sim = EIPSimulator(sensor, press)
     reading = sim.press(mesh, position, direction)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
     files["tactile"] = save_tactile_png(
         reading.image,
