@@ -138,6 +138,8 @@ def pregenerate(
     stats = GenerateStats(items=len(indices))
     todo = [i for i in indices if dataset.cache.load(cache_key(dataset.spec(i))) is None]
     stats.skipped = len(indices) - len(todo)
+    if todo:  # a read-only cache is reported before any worker starts simulating
+        dataset.cache.check_writable(cache_key(dataset.spec(todo[0])))
     per_item = dataset.touches_per_item
     bar = tqdm(
         total=len(todo) * per_item,
