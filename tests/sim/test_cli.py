@@ -99,3 +99,19 @@ def test_cli_checks_outputs_before_simulating(
     assert main(args) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o" / "tactile.png").exists()
+
+
+def test_cli_unreadable_and_zero_size_meshes_are_clear_errors(tmp_path: Path, capsys) -> None:
+    """Issue 14 case 15: random bytes ended in a charset_normalizer import error, a 1e-9 mesh in ZeroDivisionError."""
+    garbage = tmp_path / "garbage.obj"
+    garbage.write_bytes(np.random.default_rng(0).bytes(2000))
+    base = ["press", "--out", str(tmp_path / "o"), "--n-grid", "32", "--resolution", "6"]
+    assert main([*base, "--shape", str(garbage)]) == 2
+    err = capsys.readouterr().err
+    assert str(garbage) in err and ("cannot read mesh" in err or "holds no triangles" in err)
+    tiny = trimesh.creation.box()
+    tiny.apply_scale(1e-9)
+    path = tmp_path / "tiny.obj"
+    path.write_text(tiny.export(file_type="obj"))  # 8 decimals: every vertex is written as 0
+    assert main([*base, "--shape", str(path)]) == 2
+    assert "has zero size" in capsys.readouterr().err

@@ -44,15 +44,33 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
     if not path.is_file():
         raise ValueError(f"--shape must be one of {BUILTIN_SHAPES} or an existing mesh file, got {name!r}")
     # trimesh's processing silently drops NaN vertices (leaving a hole): check the raw file like the API does
-    raw = trimesh.load(path, force="mesh", process=False)
+    raw = _read_mesh(path, process=False)
     if isinstance(raw, trimesh.Trimesh) and not np.isfinite(np.asarray(raw.vertices)).all():
         raise ValueError(f"{path} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
-    mesh = trimesh.load(path, force="mesh")
+    mesh = _read_mesh(path, process=True)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path} holds no triangles")
+    extent = float(np.ptp(mesh.bounds, axis=0).max())
+    if not extent > 0 or not float(mesh.area) > 0:
+        raise ValueError(
+            f"{path} has zero size (every triangle is degenerate, largest extent {extent:.3g}): its coordinates were "
+            f"probably scaled or rounded to nothing (e.g. a 1e-9 scale written with a few decimals); export it in "
+            f"its original units"
+        )
     mesh.apply_translation(-mesh.bounds.mean(0))
-    mesh.apply_scale(1.0 / float(np.ptp(mesh.bounds, axis=0).max()))
+    mesh.apply_scale(1.0 / extent)
     return mesh
+
+
+def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh | trimesh.Scene:
+    """``trimesh.load`` of a mesh file; any reader failure (garbage bytes, wrong format) is a ValueError naming it."""
+    try:
+        return trimesh.load(path, force="mesh", process=process)
+    except Exception as err:  # trimesh's readers fail in many ways (e.g. an ImportError of an optional decoder)
+        raise ValueError(
+            f"cannot read mesh {path} ({type(err).__name__}: {err}): is it a valid mesh file "
+            f"(.obj, .stl, .ply, .glb, .off)? Re-export it from a mesh tool"
+        ) from err
 
 
 def default_position(mesh: trimesh.Trimesh, direction: np.ndarray) -> np.ndarray:
