@@ -26,7 +26,8 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
-from train import fix_test_touches, report_tables, save_results  # noqa: E402
+from train import exit_on_sigterm, fix_test_touches, report_tables, save_results  # noqa: E402
+from tvrecon.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -90,6 +91,7 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
             f"{cfg_path} (the config of the run that wrote {ckpt}) does not exist: eval.py rebuilds the model from "
             f"it, so evaluate checkpoints inside their train.py run folder"
         )
+    state = load_checkpoint(ckpt)  # plain tensors and hparams only; a corrupt file is named before any work
     run_cfg = OmegaConf.load(cfg_path)
     with open_dict(run_cfg):
         run_cfg.paths = OmegaConf.create(OmegaConf.to_container(cfg.paths, resolve=True))
@@ -113,9 +115,9 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
     trainer: L.Trainer = hydra.utils.instantiate(
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
-    state = torch.load(ckpt, map_location="cpu", weights_only=True)  # plain tensors and hparams only
     model.load_state_dict(state["state_dict"])
-    trainer.test(model=model, datamodule=datamodule)
+    with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
+        trainer.test(model=model, datamodule=datamodule)
     result = getattr(model, "test_results", None)
     if result is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
@@ -126,18 +128,36 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
 
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
-    """Evaluate every checkpoint named by ``cfg`` and write/print the tables. Returns results and table text."""
+    """Evaluate every checkpoint named by ``cfg`` and write/print the tables. Returns results and table text.
+
+    In a sweep (``run_dir``) a truncated or corrupt checkpoint is skipped with a warning and the tables of the other
+    runs are still written (the skipped files are returned under ``"skipped"``); a single ``ckpt_path`` that cannot
+    be read raises :class:`~tvrecon.checkpoint.CorruptCheckpointError` naming the file.
+    """
     if cfg.get("torch_threads"):
         torch.set_num_threads(int(cfg.torch_threads))
     ckpts = find_checkpoints(cfg.get("ckpt_path"), cfg.get("run_dir"), str(cfg.get("prefer", "best")))
     out_root = Path(cfg.paths.output_dir)
     results = []
+    skipped: list[str] = []
     for i, ckpt in enumerate(ckpts):
         name = f"{i:02d}_{ckpt.resolve().parent.parent.name}"
         log.info("[%d/%d] evaluating %s", i + 1, len(ckpts), ckpt)
-        results.append(evaluate_checkpoint(ckpt, cfg, out_root / name))
+        try:
+            results.append(evaluate_checkpoint(ckpt, cfg, out_root / name))
+        except CorruptCheckpointError as err:
+            if cfg.get("run_dir") is None:
+                raise
+            log.warning("skipping %s: %s (evaluate that run with prefer=last, or retrain it)", ckpt, err)
+            skipped.append(str(ckpt))
+    if not results:
+        raise ValueError(
+            f"no checkpoint below {cfg.get('run_dir')} could be read (all truncated or corrupt): {skipped}"
+        )
     text = report_tables(results, out_root)
-    return {"results": results, "tables": text, "output_dir": str(out_root)}
+    if skipped:
+        log.warning("tables leave out %d run(s) whose checkpoint is unreadable: %s", len(skipped), ", ".join(skipped))
+    return {"results": results, "tables": text, "output_dir": str(out_root), "skipped": skipped}
 
 
 @hydra.main(version_base="1.3", config_path="configs", config_name="eval.yaml")

@@ -17,6 +17,10 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -27,9 +31,11 @@ import hydra  # noqa: E402
 import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
+from lightning.pytorch.utilities.exceptions import SIGTERMException  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
 from tvrecon.atomic import atomic_write_text  # noqa: E402
+from tvrecon.checkpoint import check_checkpoint  # noqa: E402
 from tvrecon.tables import build_tables, format_tables, write_tables  # noqa: E402
 from tvrecon.viz import plot_loss_curves  # noqa: E402
 
@@ -79,6 +85,45 @@ def _csv_metrics(trainer: L.Trainer) -> Path | None:
     return None
 
 
+def last_checkpoint(trainer: L.Trainer) -> Path | None:
+    """The newest checkpoint the trainer's ModelCheckpoint wrote (its ``last.ckpt`` when saved), None if none yet."""
+    cb = trainer.checkpoint_callback
+    if cb is None:
+        return None
+    for attr in ("last_model_path", "best_model_path"):
+        path = getattr(cb, attr, "")
+        if path and Path(path).is_file():
+            return Path(path)
+    dirpath = getattr(cb, "dirpath", None)
+    ckpts = sorted(Path(dirpath).glob("*.ckpt"), key=lambda p: p.stat().st_mtime) if dirpath else []
+    return ckpts[-1] if ckpts else None
+
+
+@contextmanager
+def exit_on_sigterm(trainer: L.Trainer, stage: str, hint: str | None = None) -> Iterator[None]:
+    """Turn Lightning's SIGTERM stop (a ``SystemExit`` with code 0) into exit status 143 and a message.
+
+    Lightning stops its loops cleanly on SIGTERM but raises ``SIGTERMException``, a ``SystemExit(None)``: the
+    process exited 0 and a script or scheduler took a killed run for a finished one. Here the run says that it was
+    terminated, at which epoch/step and what to do next (``hint``; by default the last checkpoint to resume from),
+    then exits with 128 + SIGTERM like a process killed by the signal.
+    """
+    try:
+        yield
+    except SIGTERMException:
+        if hint is None:
+            ckpt = last_checkpoint(trainer)
+            hint = (
+                f"the last checkpoint is {ckpt.resolve()}: resume with ckpt_path={ckpt.resolve()}"
+                if ckpt is not None
+                else "no checkpoint was saved before the signal: rerun from scratch"
+            )
+        msg = f"{stage} terminated by SIGTERM at epoch {trainer.current_epoch}, step {trainer.global_step}; {hint}"
+        log.error(msg)
+        print(msg, file=sys.stderr, flush=True)
+        sys.exit(128 + signal.SIGTERM)
+
+
 def fix_test_touches(data_cfg: DictConfig) -> None:
     """Give every reconstruction test sample ``max_touches`` touches (``data.test.num_touches``), in place.
 
@@ -94,6 +139,43 @@ def fix_test_touches(data_cfg: DictConfig) -> None:
         log.info("test split: every sample gets data.max_touches=%d touches", int(data_cfg.max_touches))
 
 
+def check_training_length(cfg: DictConfig) -> None:
+    """Refuse epoch counts that would report an untrained model or never reach the test.
+
+    ``trainer.max_epochs=0`` fits nothing, and the test then printed Tables 3/4 of the random initial weights under
+    the experiment's name; it is refused unless ``ckpt_path`` gives the weights (then only a warning: the checkpoint
+    is tested as it is). ``max_epochs=-1`` is Lightning's "train forever": refused unless ``trainer.max_steps`` or
+    ``trainer.max_time`` bounds the run, since without them no test or table ever comes.
+
+    Raises:
+        ValueError: naming the setting and what to pass instead.
+    """
+    trainer = cfg.get("trainer") or {}
+    if not cfg.get("train") or trainer.get("fast_dev_run") or trainer.get("max_epochs") is None:
+        return
+    max_epochs = int(trainer.max_epochs)
+    max_steps = trainer.get("max_steps")
+    bounded = trainer.get("max_time") is not None or (max_steps is not None and int(max_steps) > 0)
+    if max_epochs == 0:
+        if cfg.get("ckpt_path") is None:
+            raise ValueError(
+                "trainer.max_epochs=0 trains nothing: the test and the tables would report the untrained model as "
+                "this experiment's result. Train with trainer.max_epochs=N (N >= 1), or test a trained checkpoint "
+                "with `python eval.py ckpt_path=<run>/checkpoints/last.ckpt`"
+            )
+        log.warning(
+            "trainer.max_epochs=0: no training, the weights of ckpt_path=%s are tested as they are", cfg.ckpt_path
+        )
+    elif max_epochs == -1 and not bounded:
+        raise ValueError(
+            "trainer.max_epochs=-1 trains forever (Lightning's infinite mode), so the test and the tables never come: "
+            "give a number of epochs (trainer.max_epochs=N), or bound the run with +trainer.max_time=DD:HH:MM:SS or "
+            "+trainer.max_steps=N"
+        )
+    elif max_epochs < -1:
+        raise ValueError(f"trainer.max_epochs={max_epochs} is not a number of epochs: use N >= 1 (or -1 with a bound)")
+
+
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit then test the model described by ``cfg`` (the composed ``configs/train.yaml``).
 
@@ -101,12 +183,15 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ``{"metrics": {name: float}, "result": test result dict | None, "tables": str, "output_dir": str,
         "best_ckpt": str | None}``.
     """
+    check_training_length(cfg)
     ckpt_path = cfg.get("ckpt_path")
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise FileNotFoundError(
             f"ckpt_path={ckpt_path} does not exist: pass the checkpoints/last.ckpt of an earlier run to resume, "
             f"or drop ckpt_path to start from scratch"
         )
+    if ckpt_path is not None:
+        check_checkpoint(ckpt_path)  # a truncated file is named here, not in torch's "central directory" error
     if cfg.get("torch_threads"):
         torch.set_num_threads(int(cfg.torch_threads))
     if cfg.get("seed") is not None:
@@ -127,7 +212,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
     if cfg.get("train"):
         log.info("Starting training")
-        trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
+        with exit_on_sigterm(trainer, "training"):
+            trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
 
     best = None
@@ -137,7 +223,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     tables = ""
     if cfg.get("test"):
         log.info("Testing %s", best or "the current weights (no best checkpoint)")
-        trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
+        hint = f"the checkpoints are kept: test {best} again with `python eval.py ckpt_path={best}`" if best else None
+        with exit_on_sigterm(trainer, "testing", hint):
+            trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
         result = getattr(model, "test_results", None)
         if result is not None and trainer.is_global_zero:

@@ -177,3 +177,22 @@ def test_unreadable_entry_is_reported_not_deleted_and_entries_get_umask_mode(tmp
     with pytest.raises(ValueError, match="cannot be read"):
         cache.load("a" * 64)
     assert path.exists()
+
+
+def test_read_only_cache_is_reported_before_generating(tmp_path: Path, monkeypatch) -> None:
+    """Issue 14 case 13: a read-only cache with one missing entry generated it, then crashed storing it."""
+    import tempfile
+
+    cache = SampleCache(tmp_path / "cache")
+    cache.get_or_create(_spec(touch_seed=1), lambda: {"x": np.zeros(3)})
+    calls = []
+
+    def read_only(*args, **kwargs):  # what a read-only file system answers (root ignores chmod, so no chmod here)
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    arrays, hit = cache.get_or_create(_spec(touch_seed=1), lambda: calls.append(1) or {"x": np.ones(3)})
+    assert hit and arrays["x"].sum() == 0  # reading a read-only cache still works
+    with pytest.raises(ValueError, match=r"cache .*cache is read-only \(Read-only file system\).*missing"):
+        cache.get_or_create(_spec(touch_seed=2), lambda: calls.append(1) or {"x": np.ones(3)})
+    assert calls == []  # nothing was generated

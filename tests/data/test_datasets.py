@@ -259,3 +259,16 @@ def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
     b = coerce_config(SensorConfig, {"E": 3.0})
     assert isinstance(a.E, float)
     assert cache_key({"sensor": a}) == cache_key({"sensor": b})
+
+
+def test_cached_label_follows_the_class_name_when_the_class_list_changes(tmp_path: Path) -> None:
+    """Issue 14 case 3: entries cached before a class was added kept their old integer label (now another class)."""
+    before = ObjectLibrary(classes=["cube", "torus"])
+    after = ObjectLibrary(classes=["bottle", "cube", "torus"])  # a class added in front: every label shifts by one
+    ds = classif(tmp_path, num_objects=1, classes=["torus"], touches_per_object=1, num_touches=1, library=before)
+    assert int(ds[0]["label"]) == before.label("torus") == 1
+    ds2 = classif(tmp_path, num_objects=1, classes=["torus"], touches_per_object=1, num_touches=1, library=after)
+    assert ds2.spec(0) == ds.spec(0)  # same entry: reconstruction/classification cache keys are unchanged
+    raw, hit = ds2.raw(0)
+    assert hit and int(raw["label"]) == after.label("torus") == 2
+    assert int(ds2[0]["label"]) == 2

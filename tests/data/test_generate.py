@@ -108,3 +108,24 @@ def test_main_names_a_bad_workers_value() -> None:
     """Issue 14 case 15: `workers=abc` ended in int()'s message without naming workers."""
     with pytest.raises(ValueError, match="workers must be a whole number"):
         main(["workers=abc"])
+
+
+def test_default_cache_is_the_projects_whatever_the_working_directory(tmp_path: Path, monkeypatch, capsys) -> None:
+    """Issue 14 case 10: run from another folder, generate filled ./data/cache there, not the cache train.py reads."""
+    from hydra.utils import instantiate
+
+    from tvrecon.data import generate
+    from tvrecon.data.presets import PROJECT_ROOT, default_cache_dir
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("PROJECT_ROOT", raising=False)
+    expected = (PROJECT_ROOT / "data" / "cache").resolve()
+    assert default_cache_dir() == expected and (PROJECT_ROOT / "train.py").is_file()
+    dm = instantiate(compose_preset("cls_tiny"))
+    assert Path(dm.cache_dir) == expected
+    assert instantiate(compose_preset("cls_tiny", ["cache_dir=rel"])).cache_dir == "rel"  # an explicit one is kept
+    monkeypatch.setattr(generate, "pregenerate", lambda ds, **kw: generate.GenerateStats())  # generate nothing
+    generate.main(["preset=cls_tiny", "splits=train", "workers=1"])
+    out = capsys.readouterr().out
+    assert f"cache: {expected}\n" in out and f"({expected})" in out
+    assert not (tmp_path / "data").exists()

@@ -53,3 +53,38 @@ def test_too_wide_object_is_reported_and_logged(tmp_path) -> None:
     assert float(log["grasp_width"]) > 0.1
     assert res.strip_path is not None and res.strip_path.exists()
     assert list(log["phase_names"]) == list(PHASES)
+
+
+def test_oversized_object_is_reported_as_thrown_out_not_too_small(tmp_path) -> None:
+    """Issue 14 case 15: scene.object_size=2.0 knocked the object out of the scene; the robot said "too small"."""
+    cfg = PickPlaceConfig(object="can", out_dir=str(tmp_path), render_size=(48, 36), progress=False)
+    cfg.scene.object_size = 2.0
+    cfg.write_gif = cfg.write_mp4 = False
+    res = run_pick_place(cfg)
+    assert not res.success and res.num_presses == 0
+    assert "did not stay where it was put down" in res.message and "scene.object_size=2.0" in res.message
+    assert "too small" not in res.message
+    assert res.log_path is not None and "object_size=2.0" in str(np.load(res.log_path)["message"])
+
+
+@pytest.mark.parametrize("success", [True, False])
+def test_cli_exit_status_follows_the_outcome(success: bool, tmp_path, monkeypatch, capsys) -> None:
+    """Issue 14 case 15: the robot CLI exited 0 after printing [FAILED]; scripts could not tell."""
+    import sys
+    from types import SimpleNamespace
+
+    import tvrecon.robot.pick_place as pp
+
+    fake = SimpleNamespace(
+        success=success, message="fake", log_path=None, gif_path=None, mp4_path=None, strip_path=None,
+        wall_time=0.0, num_presses=0, log={},
+    )  # fmt: skip
+    monkeypatch.setattr(pp, "run_pick_place", lambda cfg: fake)
+    monkeypatch.setattr(sys, "argv", ["pick_place", f"out_dir={tmp_path}", f"hydra.run.dir={tmp_path / 'hydra'}"])
+    if success:
+        pp.main()
+    else:
+        with pytest.raises(SystemExit) as exc:
+            pp.main()
+        assert exc.value.code == 1
+    assert ("[OK] fake" if success else "[FAILED] fake") in capsys.readouterr().out

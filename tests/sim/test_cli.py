@@ -63,3 +63,55 @@ def test_cli_rejects_nan_vertices_like_the_api(tmp_path: Path, capsys) -> None:
     args = ["press", "--shape", str(path), "--out", str(tmp_path / "o"), "--n-grid", "32", "--resolution", "6"]
     assert main(args) == 2
     assert "NaN" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--frames", "0"], "--frames must be >= 1"),
+        (["--ply", "-1"], "--ply must be >= 0"),
+        (["--out", "FILE"], "is a file: give a folder"),
+        (["--out", "FILE/sub"], "a part of its path is a file"),
+        (["--out", "READONLY"], "is not writable"),
+    ],
+)
+def test_cli_checks_outputs_before_simulating(
+    extra: list[str], message: str, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 14 case 12: a bad --out or --frames 0 failed only after the whole simulation (half the files written)."""
+    import tempfile
+
+    import tvrecon.sim.__main__ as cli
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("the simulation ran before the output options were checked")
+
+    monkeypatch.setattr(cli, "EIPSimulator", no_simulation)
+    (tmp_path / "FILE").write_text("not a folder")
+    if "READONLY" in extra:  # root ignores chmod: refuse the probe like a read-only file system would
+
+        def read_only(*args, **kwargs):
+            raise PermissionError(30, "Read-only file system")
+
+        monkeypatch.setattr(tempfile, "TemporaryFile", read_only)
+    extra = [str(tmp_path / a) if a.startswith(("FILE", "READONLY")) else a for a in extra]
+    args = ["press", "--shape", "sphere", "--out", str(tmp_path / "o"), "--n-grid", "32", "--resolution", "6", *extra]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o" / "tactile.png").exists()
+
+
+def test_cli_unreadable_and_zero_size_meshes_are_clear_errors(tmp_path: Path, capsys) -> None:
+    """Issue 14 case 15: random bytes ended in a charset_normalizer import error, a 1e-9 mesh in ZeroDivisionError."""
+    garbage = tmp_path / "garbage.obj"
+    garbage.write_bytes(np.random.default_rng(0).bytes(2000))
+    base = ["press", "--out", str(tmp_path / "o"), "--n-grid", "32", "--resolution", "6"]
+    assert main([*base, "--shape", str(garbage)]) == 2
+    err = capsys.readouterr().err
+    assert str(garbage) in err and ("cannot read mesh" in err or "holds no triangles" in err)
+    tiny = trimesh.creation.box()
+    tiny.apply_scale(1e-9)
+    path = tmp_path / "tiny.obj"
+    path.write_text(tiny.export(file_type="obj"))  # 8 decimals: every vertex is written as 0
+    assert main([*base, "--shape", str(path)]) == 2
+    assert "has zero size" in capsys.readouterr().err

@@ -255,3 +255,13 @@ def test_can_side_has_no_streak_on_a_facet_edge() -> None:
         assert z.max() - np.median(z) < 0.15  # no streak standing out of the contact
         peaks.append(z.max())
     assert peaks[0] == pytest.approx(peaks[1], rel=0.1)
+
+
+def test_object_below_a_cell_is_refused_not_missed(sim: EIPSimulator) -> None:
+    """Issue 14 case 7: a 1 mm box with domain_size=1 fell between the grid nodes: contact=False, exit 0."""
+    box = trimesh.creation.box(extents=[0.001] * 3)
+    with pytest.raises(ValueError, match=r"0\.04 grid cells across .*Scale the object up, or lower domain_size"):
+        sim.press(box, [0.0, 0.0, 0.0005], DOWN)
+    # the same box in a domain 30x smaller spans ~1.2 cells and is pressed
+    r = sim.press(box, [0.0, 0.0, 0.0005], DOWN, domain_size=1 / 30, max_depth=1.0)
+    assert r.contact

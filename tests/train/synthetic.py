@@ -120,3 +120,17 @@ class SyntheticClassificationDataModule(_Base):
         self.sets = {
             s: SyntheticClassification(n, k, num_touches, tactile_size) for k, s in enumerate(("train", "val", "test"))
         }
+
+
+class SigtermAtStep(L.Callback):
+    """Test-only callback: the process sends itself SIGTERM after training batch ``step`` (global step count)."""
+
+    def __init__(self, step: int = 1) -> None:
+        self.step = step
+
+    def on_train_batch_end(self, trainer: L.Trainer, *args: object) -> None:
+        if trainer.global_step == self.step:
+            import os
+            import signal
+
+            os.kill(os.getpid(), signal.SIGTERM)

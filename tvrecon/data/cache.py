@@ -181,6 +181,28 @@ class SampleCache:
         except FileNotFoundError:
             pass
 
+    def check_writable(self, key: str) -> None:
+        """Raise unless the entry of ``key`` could be stored: its shard folder exists or can be made, and takes a file.
+
+        Called before a missing entry is generated (seconds to minutes of simulation), so a read-only cache is
+        reported up front instead of after the work.
+
+        Raises:
+            ValueError: the cache is read-only (permissions, read-only file system, a file where a folder should be).
+        """
+        path = self.path(key)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, probe = tempfile.mkstemp(dir=path.parent, prefix=".write-probe-", suffix=".tmp")
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as err:
+            raise ValueError(
+                f"cache {self.root} is read-only ({err.strerror or err}): entry {path.name} is missing and would be "
+                f"generated but could not be stored. Make the cache writable, or set cache_dir to a folder you can "
+                f"write to (copy the shared cache there to keep its entries)"
+            ) from err
+
     def save(self, key: str, arrays: Mapping[str, Any]) -> Path:
         """Store ``arrays`` (name -> numpy array / tensor / number) under ``key`` atomically; return the file."""
         data = {}
@@ -221,6 +243,8 @@ class SampleCache:
         cached = self.load(key)
         if cached is not None:
             return cached, True
+        if self.root is not None:
+            self.check_writable(key)
         arrays = {name: _to_numpy(name, v) for name, v in create().items()}
         if self.root is not None:
             self.save(key, arrays)

@@ -305,9 +305,18 @@ class GeneratedDataset(Dataset):
         raise NotImplementedError
 
     def raw(self, index: int) -> tuple[dict[str, np.ndarray], bool]:
-        """The raw entry of item ``index`` from the cache, generated and stored on a miss. Returns (arrays, hit)."""
+        """The raw entry of item ``index`` from the cache, generated and stored on a miss. Returns (arrays, hit).
+
+        The entry's ``label`` is replaced by the item's label in the current library: the cache key holds the class
+        *name* (in the mesh params) but not the class list, so an entry cached before a class was added (e.g. a new
+        user-mesh folder) stores an integer that may now name another class. Entries stay valid; their label is
+        derived from the class name on every load.
+        """
         index = self._check_index(index)
-        return self.cache.get_or_create(self.spec(index), lambda: self._generate_single_thread(index))
+        arrays, hit = self.cache.get_or_create(self.spec(index), lambda: self._generate_single_thread(index))
+        if "label" in arrays:
+            arrays["label"] = np.asarray(self.label_of(index), dtype=np.int64)
+        return arrays, hit
 
     def _generate_single_thread(self, index: int) -> dict[str, np.ndarray]:
         """:meth:`generate` with one torch thread: float reductions then do not depend on the process's thread

@@ -29,6 +29,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from tqdm.auto import tqdm
@@ -138,6 +139,8 @@ def pregenerate(
     stats = GenerateStats(items=len(indices))
     todo = [i for i in indices if dataset.cache.load(cache_key(dataset.spec(i))) is None]
     stats.skipped = len(indices) - len(todo)
+    if todo:  # a read-only cache is reported before any worker starts simulating
+        dataset.cache.check_writable(cache_key(dataset.spec(todo[0])))
     per_item = dataset.touches_per_item
     bar = tqdm(
         total=len(todo) * per_item,
@@ -226,6 +229,8 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
     shard = parse_shard(opts.get("shard", "0/1"))
     splits = opts["splits"].split(",") if opts.get("splits") else dm.available_splits()
     results = []
+    cache = getattr(dm, "cache_dir", None)
+    print(f"cache: {Path(cache).expanduser().resolve() if cache else 'disabled (cache_dir=null)'}", flush=True)
     for name in splits:
         ds = dm.make_dataset(name)
         st = pregenerate(ds, workers=workers, shard=shard, desc=name)
@@ -233,7 +238,7 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
         print(
             f"[{name}] {st.items} items in shard, {st.skipped} cached, {st.generated} generated: {st.touches} touches "
             f"in {st.seconds:.1f} s = {st.touches_per_second:.2f} touches/s; cache {st.bytes_written / 2**20:.2f} MiB "
-            f"= {st.bytes_per_1000 / 2**20:.1f} MiB per 1000 samples ({ds.cache.root})",
+            f"= {st.bytes_per_1000 / 2**20:.1f} MiB per 1000 samples ({Path(str(ds.cache.root)).resolve()})",
             flush=True,
         )
     return results

@@ -18,6 +18,7 @@ Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,10 +26,22 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-__all__ = ["SplitSize", "TABLE1", "PRESETS", "CONFIG_DIR", "split_sizes", "compose_preset", "preset_names"]
+__all__ = [
+    "SplitSize",
+    "TABLE1",
+    "PRESETS",
+    "CONFIG_DIR",
+    "PROJECT_ROOT",
+    "split_sizes",
+    "compose_preset",
+    "preset_names",
+    "default_cache_dir",
+]
 
-#: ``configs/data`` of the repository (the package is installed in editable mode next to ``configs/``).
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "data"
+#: The repository (the package is installed in editable mode next to ``configs/``, ``train.py`` and ``data/``).
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+#: ``configs/data`` of the repository.
+CONFIG_DIR = PROJECT_ROOT / "configs" / "data"
 
 PRESETS = ("tiny", "small", "paper")
 
@@ -89,11 +102,29 @@ def split_sizes(cfg: Mapping[str, Any] | DictConfig, num_library_classes: int = 
     return out
 
 
+def default_cache_dir() -> Path:
+    """The cache ``train.py`` reads by default: ``$PROJECT_ROOT/data/cache``, absolute.
+
+    ``PROJECT_ROOT`` defaults to the repository holding this package (train.py and eval.py set it to their own
+    folder, the same one), never to the working directory.
+    """
+    return Path(os.environ.get("PROJECT_ROOT") or PROJECT_ROOT).resolve() / "data" / "cache"
+
+
 def compose_preset(name: str, overrides: Sequence[str] = ()) -> DictConfig:
-    """Compose ``configs/data/<name>.yaml`` with Hydra command-line style ``overrides`` (``key=value``)."""
+    """Compose ``configs/data/<name>.yaml`` with Hydra command-line style ``overrides`` (``key=value``).
+
+    Without a ``cache_dir=`` override the preset's cache is :func:`default_cache_dir` (absolute), whatever the
+    working directory: the YAML's ``${oc.env:PROJECT_ROOT,.}`` fallback would otherwise fill ``./data/cache`` of the
+    folder the command was started from, not the cache ``train.py`` reads.
+    """
     from hydra import compose, initialize_config_dir
 
     if not (CONFIG_DIR / f"{name}.yaml").is_file():
         raise ValueError(f"unknown data preset {name!r}; available: {preset_names()} (in {CONFIG_DIR})")
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(config_name=name, overrides=list(overrides))
+        cfg = compose(config_name=name, overrides=list(overrides))
+    raw = OmegaConf.to_container(cfg, resolve=False).get("cache_dir")  # type: ignore[union-attr]
+    if isinstance(raw, str) and "PROJECT_ROOT" in raw:  # the preset's default, not the user's cache_dir=...
+        cfg.cache_dir = str(default_cache_dir())
+    return cfg

@@ -152,8 +152,8 @@ def plan_top_grasp(
             nan3,
             len(pts),
             False,
-            f"object not found by the camera: {len(pts)} segmented points < {min_points} (too small to see and "
-            "grasp, or outside the camera's view)",
+            f"object not found by the camera: {len(pts)} segmented points < {min_points} (outside the camera's view, "
+            "hidden, or too small to see)",
         )
     centroid = pts.mean(axis=0)
     xy = pts[:, :2] - centroid[:2]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -390,8 +391,30 @@ def _run(cfg: PickPlaceConfig, simulator: object | None, t0: float) -> PickPlace
     )
 
 
+def object_misplaced(scene: Scene) -> str | None:
+    """Why the object is not where the scene put it down (None if it is): it was knocked away while settling.
+
+    An object much larger than the gripper (e.g. ``scene.object_size=2.0``) overlaps the robot or overhangs the table
+    and is thrown out of the scene; the camera then sees nothing, which read as "too small to see".
+    """
+    c = scene.cfg
+    pos = np.asarray(scene.object_pose()[0], dtype=np.float64)
+    drift = float(np.linalg.norm(pos[:2] - np.asarray(c.object_xy, dtype=np.float64)))
+    if drift <= 0.5 * c.object_size + 0.05 and pos[2] >= c.table_height:
+        return None
+    return (
+        f"the object did not stay where it was put down (now at {np.round(pos, 2).tolist()} m, put down at "
+        f"{list(c.object_xy)}): scene.object_size={c.object_size} m does not fit the scene (it hits the robot or "
+        f"overhangs the table). The gripper opens {PANDA_MAX_OPENING * 100:.0f} cm: use an object_size of a few cm"
+    )
+
+
 def _execute(scene: Scene, cfg: PickPlaceConfig, ctl: _Controller) -> tuple[bool, str, str, GraspPlan | None]:
     """The task itself; returns (success, message, phase reached, plan)."""
+    misplaced = object_misplaced(scene)
+    if misplaced is not None:
+        ctl.record()
+        return False, misplaced, "approach", None
     cam = RGBDCamera(cfg.camera, client=scene.client)
     shot = cam.capture()
     ctl.perception = shot
@@ -509,6 +532,8 @@ def _hydra_entry() -> None:
 
     config_dir = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
 
+    outcome: dict[str, bool] = {}
+
     @hydra.main(version_base="1.3", config_path=config_dir, config_name="pick_place")
     def _main(dcfg: DictConfig) -> None:
         d = OmegaConf.to_container(dcfg, resolve=True)
@@ -516,16 +541,22 @@ def _hydra_entry() -> None:
             d["out_dir"] = HydraConfig.get().runtime.output_dir
         cfg = PickPlaceConfig.from_dict(d)
         res = run_pick_place(cfg)
+        outcome["success"] = bool(res.success)
         status = "OK" if res.success else "FAILED"
         print(f"[{status}] {res.message}")
         print(f"log: {res.log_path}\ngif: {res.gif_path}\nmp4: {res.mp4_path}\nstrip: {res.strip_path}")
         print(f"wall time {res.wall_time:.1f} s, {res.num_presses} EIP presses, {len(res.log.get('step', []))} frames")
 
     _main()
+    if outcome.get("success") is False:  # scripts must tell a failed pick-place from a done one (logs are written)
+        sys.exit(1)
 
 
 def main() -> None:
-    """Console entry point (Hydra): ``python -m tvrecon.robot.pick_place object=can``."""
+    """Console entry point (Hydra): ``python -m tvrecon.robot.pick_place object=can``.
+
+    Exits with status 1 when the run ends ``[FAILED]`` (the log, gif and strip are still written), 0 on ``[OK]``.
+    """
     _hydra_entry()
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import io
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -43,15 +44,33 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
     if not path.is_file():
         raise ValueError(f"--shape must be one of {BUILTIN_SHAPES} or an existing mesh file, got {name!r}")
     # trimesh's processing silently drops NaN vertices (leaving a hole): check the raw file like the API does
-    raw = trimesh.load(path, force="mesh", process=False)
+    raw = _read_mesh(path, process=False)
     if isinstance(raw, trimesh.Trimesh) and not np.isfinite(np.asarray(raw.vertices)).all():
         raise ValueError(f"{path} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
-    mesh = trimesh.load(path, force="mesh")
+    mesh = _read_mesh(path, process=True)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path} holds no triangles")
+    extent = float(np.ptp(mesh.bounds, axis=0).max())
+    if not extent > 0 or not float(mesh.area) > 0:
+        raise ValueError(
+            f"{path} has zero size (every triangle is degenerate, largest extent {extent:.3g}): its coordinates were "
+            f"probably scaled or rounded to nothing (e.g. a 1e-9 scale written with a few decimals); export it in "
+            f"its original units"
+        )
     mesh.apply_translation(-mesh.bounds.mean(0))
-    mesh.apply_scale(1.0 / float(np.ptp(mesh.bounds, axis=0).max()))
+    mesh.apply_scale(1.0 / extent)
     return mesh
+
+
+def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh | trimesh.Scene:
+    """``trimesh.load`` of a mesh file; any reader failure (garbage bytes, wrong format) is a ValueError naming it."""
+    try:
+        return trimesh.load(path, force="mesh", process=process)
+    except Exception as err:  # trimesh's readers fail in many ways (e.g. an ImportError of an optional decoder)
+        raise ValueError(
+            f"cannot read mesh {path} ({type(err).__name__}: {err}): is it a valid mesh file "
+            f"(.obj, .stl, .ply, .glb, .off)? Re-export it from a mesh tool"
+        ) from err
 
 
 def default_position(mesh: trimesh.Trimesh, direction: np.ndarray) -> np.ndarray:
@@ -91,8 +110,36 @@ def to_sensor_cells(points: torch.Tensor, reading: TactileReading, press: PressC
     return local.numpy()
 
 
+def check_outputs(args: argparse.Namespace) -> Path:
+    """Check the output options before the simulation runs (it takes minutes); create ``--out``. Returns it.
+
+    Raises:
+        ValueError: ``--out`` is a file, under a file, or not writable; ``--frames`` < 1 (deformation.png and the
+            .ply files need a frame) or ``--ply`` < 0.
+    """
+    if args.frames < 1:
+        raise ValueError(f"--frames must be >= 1 (frames drawn in deformation.png), got {args.frames}")
+    if args.ply < 0:
+        raise ValueError(f"--ply must be >= 0 (pad .ply files of the last frames; 0 writes none), got {args.ply}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file: give a folder (it will hold tactile.png, reading.npz, ...)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):  # the real test: permissions, read-only file systems, quotas
+            pass
+    except (FileExistsError, NotADirectoryError) as err:
+        raise ValueError(f"--out {out} cannot be a folder: a part of its path is a file ({err})") from err
+    except OSError as err:
+        raise ValueError(
+            f"--out {out} is not writable ({err.strerror or err}): choose a folder you can write to"
+        ) from err
+    return out
+
+
 def run_press(args: argparse.Namespace) -> dict[str, Path]:
     """Run one press from parsed CLI arguments and write its files; returns {name: path}."""
+    out = check_outputs(args)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     mesh = load_shape(args.shape, seed=args.seed)
@@ -113,8 +160,6 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     )
     sim = EIPSimulator(sensor, press)
     reading = sim.press(mesh, position, direction)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
     files["tactile"] = save_tactile_png(
         reading.image,

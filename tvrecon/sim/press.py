@@ -319,11 +319,19 @@ class EIPSimulator:
 
     def _setup(self, mesh: trimesh.Trimesh, position, direction, s: SensorConfig, p: PressConfig) -> _Touch:
         _check_mesh(mesh)
+        S, dx = float(p.domain_size), 1.0 / int(p.n_grid)
+        extent_cells = float(np.ptp(np.asarray(mesh.bounds), axis=0).max()) / S * int(p.n_grid)
+        if extent_cells < 1.0:  # the collider samples the object at grid nodes: below a cell it falls between them
+            raise ValueError(
+                f"the object is {extent_cells:.3g} grid cells across (largest extent "
+                f"{extent_cells * S / int(p.n_grid):.3g} world units, one cell = domain_size/n_grid = "
+                f"{S / int(p.n_grid):.3g}): the pad would miss it. Scale the object up, or lower domain_size (the pad "
+                f"shrinks with it) or raise n_grid so it spans several cells"
+            )
         pos = _as_vec3(position, "position")
         d = _as_vec3(direction, "direction")
         R = sensor_frame(d)  # raises on zero / NaN direction
         d = -R[:, 2]
-        S, dx = float(p.domain_size), 1.0 / int(p.n_grid)
         reach = self._reach(s, p)
         if reach <= 0:
             raise ValueError(f"the domain ({p.n_grid} cells) is too small for a pad of thickness {s.thickness} cells")

@@ -1,0 +1,69 @@
+"""Checkpoint files checked before use: a truncated or corrupt ``.ckpt`` is reported with its path.
+
+torch's own error for a truncated checkpoint ("failed finding central directory") does not name the file, and a
+checkpoint whose middle was damaged can even load with wrong weights. Lightning/torch checkpoints are zip archives
+with a CRC per member, so :func:`check_checkpoint` verifies the archive (reads it once, no unpickling).
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+__all__ = ["CorruptCheckpointError", "check_checkpoint", "load_checkpoint"]
+
+
+class CorruptCheckpointError(ValueError):
+    """A checkpoint file exists but cannot be read (truncated, damaged, or not a torch checkpoint)."""
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        self.path = Path(path)
+        super().__init__(
+            f"checkpoint {self.path} is truncated or corrupt ({reason}): it was probably written by a run that was "
+            f"killed while saving, or copied incompletely; use another checkpoint of the run (e.g. last.ckpt or an "
+            f"earlier epoch) or delete this file"
+        )
+
+
+def check_checkpoint(path: str | Path) -> Path:
+    """Raise :class:`CorruptCheckpointError` unless ``path`` is a complete torch zip checkpoint. Returns the path.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        CorruptCheckpointError: not a zip archive (truncated files lose the zip's central directory) or a member's
+            CRC does not match.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as err:
+        if isinstance(err, PermissionError):
+            raise
+        raise CorruptCheckpointError(path, f"{type(err).__name__}: {err}") from err
+    if bad is not None:
+        raise CorruptCheckpointError(path, f"member {bad} fails its CRC check")
+    return path
+
+
+def load_checkpoint(path: str | Path, weights_only: bool = True) -> dict[str, Any]:
+    """Check then ``torch.load`` a checkpoint on the CPU; any read failure names the file.
+
+    Raises:
+        FileNotFoundError / CorruptCheckpointError: as :func:`check_checkpoint`, or torch cannot unpickle it.
+    """
+    path = check_checkpoint(path)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=weights_only)
+    except (RuntimeError, EOFError, OSError) as err:
+        if isinstance(err, PermissionError):
+            raise
+        raise CorruptCheckpointError(path, f"{type(err).__name__}: {err}") from err
+    if not isinstance(state, dict) or "state_dict" not in state:
+        raise CorruptCheckpointError(path, "no 'state_dict' in it: not a Lightning checkpoint")
+    return state
