@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from tvrecon.geometry import check_mesh
 from tvrecon.sim import colliders as _colliders
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
 from tvrecon.sim.sensor import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice, sensor_frame
@@ -215,17 +216,6 @@ def _touch_z(dx: float) -> float:
     return 0.5 + 0.5 * dx
 
 
-def _check_mesh(mesh: trimesh.Trimesh) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
-        raise ValueError(
-            f"mesh is empty ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces): pass a mesh with triangles"
-        )
-    if not np.isfinite(np.asarray(mesh.vertices)).all():
-        raise ValueError("mesh has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
-
-
 def _as_vec3(value, name: str) -> Tensor:
     t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not isinstance(value, Tensor) else value)
     t = t.detach().to(torch.float32).cpu()
@@ -318,7 +308,7 @@ class EIPSimulator:
         return 0.5 - (s.thickness + float(p.gap) + float(p.max_depth) + 4.0) * dx
 
     def _setup(self, mesh: trimesh.Trimesh, position, direction, s: SensorConfig, p: PressConfig) -> _Touch:
-        _check_mesh(mesh)
+        check_mesh(mesh)
         pos = _as_vec3(position, "position")
         d = _as_vec3(direction, "direction")
         R = sensor_frame(d)  # raises on zero / NaN direction
