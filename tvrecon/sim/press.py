@@ -33,6 +33,7 @@ from tqdm.auto import tqdm
 
 from tvrecon.geometry import check_mesh
 from tvrecon.sim import colliders as _colliders
+from tvrecon.sim.materials import p_wave_speed
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
 from tvrecon.sim.sensor import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice, sensor_frame
 
@@ -281,10 +282,7 @@ class EIPSimulator:
     @staticmethod
     def wave_speed(sensor: SensorConfig) -> float:
         """Elastic P-wave speed sqrt((lambda + 2 mu) / rho) in domain units / s."""
-        E, nu, rho = _scalar(sensor.E), _scalar(sensor.nu), float(sensor.rho)
-        mu = E / (2 * (1 + nu))
-        lam = E * nu / ((1 + nu) * (1 - 2 * nu))
-        return math.sqrt((lam + 2 * mu) / rho)
+        return p_wave_speed(_scalar(sensor.E), _scalar(sensor.nu), float(sensor.rho))
 
     def _mpm_config(self, s: SensorConfig, p: PressConfig) -> MPMConfig:
         cfg = MPMConfig(
