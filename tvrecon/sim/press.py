@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from tvrecon.config_utils import check_known_keys, field_names
 from tvrecon.geometry import check_mesh
 from tvrecon.sim import colliders as _colliders
 from tvrecon.sim.materials import p_wave_speed
@@ -269,10 +270,8 @@ class EIPSimulator:
 
     # ------------------------------------------------------------------ configuration
     def _configs(self, overrides: dict) -> tuple[SensorConfig, PressConfig]:
-        s_names, p_names = set(SensorConfig.field_names()), {f.name for f in dataclasses.fields(PressConfig)}
-        bad = sorted(set(overrides) - s_names - p_names)
-        if bad:
-            raise ValueError(f"unknown press option(s) {bad}; valid: {sorted(s_names | p_names)}")
+        s_names, p_names = set(field_names(SensorConfig)), set(field_names(PressConfig))
+        check_known_keys(overrides, s_names | p_names, "press")
         s = dataclasses.replace(self.sensor, **{k: v for k, v in overrides.items() if k in s_names})
         p = dataclasses.replace(self.cfg, **{k: v for k, v in overrides.items() if k in p_names})
         if p.depth is not None and float(p.depth) + 0.5 > float(p.max_depth):

@@ -18,10 +18,12 @@ the hand velocity:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from tvrecon import config_utils
 
 ALPHA_PROFILES = ("clamped", "linear")
 
@@ -106,7 +108,8 @@ class SensorConfig:
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
+        """Names of the config's fields (`tvrecon.config_utils.field_names`)."""
+        return config_utils.field_names(cls)
 
 
 def pad_lattice(cfg: SensorConfig, device: torch.device | str | None = None) -> Tensor:
