@@ -2,14 +2,17 @@
 
 Dense ``n_grid^3`` grid, a python loop over the 27 stencil offsets with one ``index_add_`` per quantity,
 ``torch.linalg.svd`` for the polar decomposition and ``P(F) = 2 mu (F - R) + lam (J - 1) J F^-T`` with
-``torch.linalg.inv``. Deliberately independent of ``tvrecon.sim.mpm`` (only the colliders' sdf/normal are shared),
-so that agreement between the two is a real check.
+``torch.linalg.inv``. Deliberately independent of ``tvrecon.sim.mpm`` (only the colliders' sdf/normal and the
+textbook Lamé formulas of ``tvrecon.sim.materials.lame_parameters`` are shared), so that agreement between the two is
+a real check.
 """
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
+
+from tvrecon.sim.materials import lame_parameters
 
 
 class ReferenceMPM:
@@ -26,8 +29,7 @@ class ReferenceMPM:
         self.n = n_grid
         self.dx = 1.0 / n_grid
         self.dt = dt
-        self.mu = E / (2 * (1 + nu))
-        self.lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+        self.mu, self.lam = lame_parameters(E, nu)
         self.friction = friction
         self.last_force = torch.zeros(3)
 

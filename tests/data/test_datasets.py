@@ -225,7 +225,7 @@ def test_bad_arguments_raise_clear_errors(tmp_path: Path):
         recon(tmp_path, num_touches=3)
     with pytest.raises(ValueError, match="not in the object library"):
         recon(tmp_path, classes=["cube", "unicorn"])
-    with pytest.raises(ValueError, match="unknown SensorConfig keys"):
+    with pytest.raises(ValueError, match=r"unknown SensorConfig option\(s\) \['resolutoin'\]"):
         recon(tmp_path, sensor={"resolutoin": (8, 8)})
     with pytest.raises(ValueError, match="num_touches <= touches_per_object"):
         classif(tmp_path, num_touches=4)

@@ -9,6 +9,7 @@ from tvrecon.sim.materials import (
     fixed_corotated_kirchhoff,
     fixed_corotated_stress,
     lame_parameters,
+    p_wave_speed,
     polar_decomposition,
 )
 
@@ -72,6 +73,16 @@ def test_gradient_flows_to_E_and_nu():
     fixed_corotated_stress(F, mu, lam).square().sum().backward()
     assert E.grad is not None and E.grad.abs() > 0
     assert nu.grad is not None and nu.grad.abs() > 0
+
+
+def test_p_wave_speed_is_the_textbook_formula():
+    """c = sqrt((lambda + 2 mu) / rho) = sqrt(E (1 - nu) / ((1 + nu)(1 - 2 nu) rho)); tensors give their value."""
+    E, nu, rho = 3.0, 0.25, 2.0
+    assert p_wave_speed(E, nu, rho) == pytest.approx((E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho)) ** 0.5)
+    t = p_wave_speed(torch.tensor(E, requires_grad=True), torch.tensor(nu), rho)
+    assert isinstance(t, float) and t == pytest.approx(p_wave_speed(E, nu, rho), rel=1e-6)
+    with pytest.raises(ValueError, match="rho"):
+        p_wave_speed(E, nu, 0.0)
 
 
 def test_bad_inputs():

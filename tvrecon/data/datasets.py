@@ -23,10 +23,9 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import torch
@@ -34,6 +33,7 @@ import trimesh
 from torch import Tensor
 from torch.utils.data import Dataset
 
+from tvrecon.config_utils import coerce_config
 from tvrecon.data.cache import SampleCache
 from tvrecon.data.render import render_view, sample_camera
 from tvrecon.data.shapes import ObjectLibrary
@@ -50,8 +50,6 @@ __all__ = [
     "TactileClassificationDataset",
     "coerce_config",
 ]
-
-C = TypeVar("C")
 
 
 @dataclasses.dataclass
@@ -71,38 +69,6 @@ class RenderConfig:
     fov_deg: float = 45.0
     ambient: float = 0.3
     background: float = 1.0
-
-
-def coerce_config(cls: type[C], value: C | Mapping[str, Any] | None) -> C:
-    """Build dataclass ``cls`` from an instance, a mapping (e.g. a Hydra ``DictConfig``) or ``None`` (defaults).
-
-    Raises ValueError naming the unknown keys.
-    """
-    if value is None:
-        return cls()
-    if isinstance(value, cls):
-        return value
-    if not isinstance(value, Mapping):
-        try:
-            from omegaconf import DictConfig, OmegaConf
-
-            if isinstance(value, DictConfig):
-                value = OmegaConf.to_container(value, resolve=True)
-        except ImportError:  # pragma: no cover
-            pass
-    if not isinstance(value, Mapping):
-        raise ValueError(f"{cls.__name__} config must be a {cls.__name__} or a mapping, got {type(value).__name__}")
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(value) - names)
-    if unknown:
-        raise ValueError(f"unknown {cls.__name__} keys {unknown}; valid keys are {sorted(names)}")
-    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
-    # `sensor.E=3` and `sensor.E=3.0` must be the same config (and cache key): an int for a float field is a float
-    hints = typing.get_type_hints(cls)
-    for k, v in kwargs.items():
-        if hints.get(k) is float and isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_):
-            kwargs[k] = float(v)
-    return cls(**kwargs)
 
 
 def _pair(size: int | Sequence[int], name: str) -> tuple[int, int]:

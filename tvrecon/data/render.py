@@ -20,6 +20,8 @@ import torch
 import trimesh
 from torch import Tensor
 
+from tvrecon.geometry import check_mesh, world_to_camera
+
 try:  # Embree (embreex) is ~50x faster than the pure-python triangle intersector.
     from trimesh.ray.ray_pyembree import RayMeshIntersector as _Intersector
 except ImportError:  # pragma: no cover - embreex is a declared dependency
@@ -136,15 +138,6 @@ def ray_intersector(mesh: trimesh.Trimesh):
     return _Intersector(mesh)
 
 
-def _check_mesh(mesh: trimesh.Trimesh) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if len(mesh.faces) == 0:
-        raise ValueError("mesh has no faces: render_view needs a non-empty triangle mesh")
-    if not np.isfinite(mesh.vertices).all():
-        raise ValueError("mesh vertices contain NaN or inf")
-
-
 def _shading_normals(mesh: trimesh.Trimesh, tri: np.ndarray, points: np.ndarray, crease_deg: float = 30.0):
     """(n, 3) unit shading normals at `points` (n, 3) on faces `tri` (n,): barycentric blend of the corner
     vertex normals, using the face normal at corners where the surface bends more than `crease_deg`."""
@@ -193,7 +186,7 @@ def render_view(
         dict with "image" (3, H, W) float32 in [0, 1], "depth" (H, W) float32 camera-frame z of the first hit
         (0 = background), "mask" (H, W) bool (True where the object is).
     """
-    _check_mesh(mesh)
+    check_mesh(mesh)
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a tvrecon.data.render.Camera, got {type(camera).__name__}")
     if not 0.0 <= ambient <= 1.0 or not 0.0 <= background <= 1.0:
@@ -235,33 +228,6 @@ def render_view(
     }
 
 
-def _check_projection_args(points: Tensor, RT: Tensor) -> tuple[Tensor, Tensor]:
-    points = torch.as_tensor(points)
-    RT = torch.as_tensor(RT)
-    if points.ndim != 2 or points.shape[-1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {tuple(points.shape)}")
-    if RT.shape != (3, 4):
-        raise ValueError(f"RT must have shape (3, 4) [R | t] (world->camera), got {tuple(RT.shape)}")
-    if not points.is_floating_point():
-        points = points.float()
-    return points, RT.to(device=points.device, dtype=points.dtype)
-
-
-def world_to_camera(points: Tensor, RT: Tensor) -> Tensor:
-    """World points to the camera frame with kornia.
-
-    Args:
-        points: (N, 3) float world coordinates.
-        RT: (3, 4) world->camera [R | t].
-
-    Returns:
-        (N, 3) camera-frame points (z = depth), dtype and device of `points`.
-    """
-    points, RT = _check_projection_args(points, RT)
-    T = kornia.geometry.conversions.Rt_to_matrix4x4(RT[None, :, :3], RT[None, :, 3:])[0]  # (4, 4)
-    return kornia.geometry.linalg.transform_points(T, points)
-
-
 def project_points(points: Tensor, K: Tensor, RT: Tensor) -> Tensor:
     """Project world points to pixel coordinates with kornia (OpenCV convention, pixel centres at integers).
 
@@ -274,7 +240,9 @@ def project_points(points: Tensor, K: Tensor, RT: Tensor) -> Tensor:
         (N, 2) pixel coordinates (u, v) = (column, row), dtype and device of `points`. Points behind the camera
         are not flagged: check `world_to_camera(points, RT)[:, 2] > 0` where that matters.
     """
-    K = torch.as_tensor(K)
+    K, points = torch.as_tensor(K), torch.as_tensor(points)
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {tuple(points.shape)}")
     if K.shape != (3, 3):
         raise ValueError(f"K must have shape (3, 3), got {tuple(K.shape)}")
     cam = world_to_camera(points, RT)  # (N, 3)

@@ -20,7 +20,8 @@ import trimesh
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from tvrecon.data.render import Camera, ray_intersector, world_to_camera
+from tvrecon.data.render import Camera, ray_intersector
+from tvrecon.geometry import check_mesh, perpendicular_basis, world_to_camera
 
 if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
     from tvrecon.sim.press import EIPSimulator, TactileReading
@@ -79,15 +80,6 @@ class TouchPolicy:
             raise ValueError(f"TouchPolicy.oversample must be >= 1, got {self.oversample}")
 
 
-def _check_mesh(mesh: trimesh.Trimesh) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if len(mesh.faces) == 0 or not mesh.area > 0:
-        raise ValueError("mesh has no faces (or zero area): touches need a non-empty surface")
-    if not np.isfinite(mesh.vertices).all():
-        raise ValueError("mesh vertices contain NaN or inf")
-
-
 def cone_directions(axes: np.ndarray, half_angle_deg: float, rng: np.random.Generator) -> np.ndarray:
     """Unit directions drawn uniformly (by solid angle) in cones around `axes`.
 
@@ -107,10 +99,7 @@ def cone_directions(axes: np.ndarray, half_angle_deg: float, rng: np.random.Gene
     cos_t = 1.0 - rng.uniform(size=len(a)) * (1.0 - cos_max)  # uniform on the spherical cap
     sin_t = np.sqrt(np.clip(1.0 - cos_t**2, 0.0, None))
     phi = rng.uniform(0.0, 2 * np.pi, size=len(a))
-    helper = np.where(np.abs(a[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    e1 = np.cross(a, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(a, e1)
+    e1, e2 = perpendicular_basis(a)
     d = cos_t[:, None] * a + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
@@ -191,10 +180,7 @@ def pad_reachable(
     if len(positions) == 0:
         return np.zeros(0, dtype=bool)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    helper = np.where(np.abs(d[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    e1 = np.cross(d, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(d, e1)
+    e1, e2 = perpendicular_basis(d)
     g = np.linspace(-0.5, 0.5, k) * width
     gx, gy = np.meshgrid(g, g)
     disc = np.hypot(gx, gy) <= 0.5 * width + 1e-12
@@ -231,7 +217,7 @@ def sample_touches(
         "strengths" list of T dicts of press overrides.
     """
     policy = policy if policy is not None else TouchPolicy()
-    _check_mesh(mesh)
+    check_mesh(mesh, require_area=True)
     if int(n) < 1:
         raise ValueError(f"n (number of touches) must be >= 1, got {n}")
     n = int(n)

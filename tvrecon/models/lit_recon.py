@@ -39,10 +39,10 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
+from tvrecon.geometry import rotate_to_camera, world_to_camera
 from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
 from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
-from tvrecon.models.projection import world_to_camera
 from tvrecon.models.refine import refine_to_patches
 from tvrecon.models.touch_geometry import patch_to_mesh_loss
 from tvrecon.viz import export_obj, render_mesh_comparison
@@ -78,8 +78,7 @@ def gt_to_camera(points: Tensor, normals: Tensor, RT: Tensor) -> tuple[Tensor, T
         )
     if RT.shape != (points.shape[0], 3, 4):
         raise ValueError(f"RT must have shape (B, 3, 4) with B={points.shape[0]}, got {tuple(RT.shape)}")
-    R = RT[:, :, :3]
-    return world_to_camera(points, RT), normals @ R.transpose(1, 2)
+    return world_to_camera(points, RT), rotate_to_camera(normals, RT)
 
 
 def keep_first_touches(touch_mask: Tensor, k: int | Tensor) -> Tensor:

@@ -2,7 +2,8 @@
 
 Convention (OpenCV, same as ``tvrecon.data.render``): ``RT`` (3,4) maps world to camera coordinates, the camera looks
 along +z with y down; ``K`` (3,3) maps camera coordinates to pixels ``(u, v)`` with u to the right, v down and pixel
-centres at integer coordinates, so an ``H x W`` image covers ``[-0.5, W - 0.5) x [-0.5, H - 0.5)``.
+centres at integer coordinates, so an ``H x W`` image covers ``[-0.5, W - 0.5) x [-0.5, H - 0.5)``. The world->camera
+transform itself (``world_to_camera``, ``rt_to_matrix``) lives in ``tvrecon.geometry`` and is re-exported here.
 
 Feature maps of a CNN stage with stride ``s`` cover the same field of view as the image: image pixel coordinate ``u``
 maps to feature coordinate ``(u + 0.5) * w / W - 0.5`` (``pixel_to_feature``), which is also the mapping that
@@ -13,8 +14,9 @@ from __future__ import annotations
 
 import torch
 from kornia.geometry.camera.perspective import project_points
-from kornia.geometry.linalg import transform_points
 from torch import Tensor
+
+from tvrecon.geometry import rt_to_matrix, world_to_camera
 
 __all__ = [
     "camera_to_pixel",
@@ -36,38 +38,6 @@ def _check_points(points: Tensor, name: str = "points") -> None:
 def _check_K(K: Tensor, batch: int) -> None:
     if K.dim() != 3 or K.shape[1:] != (3, 3) or K.shape[0] != batch:
         raise ValueError(f"K must have shape (B, 3, 3) with B={batch}, got {tuple(K.shape)}")
-
-
-def rt_to_matrix(RT: Tensor) -> Tensor:
-    """Pad world->camera extrinsics to homogeneous 4x4 matrices.
-
-    Args:
-        RT: (B, 3, 4) float ``[R | t]``.
-
-    Returns:
-        (B, 4, 4) float, last row ``(0, 0, 0, 1)``.
-    """
-    if RT.dim() != 3 or RT.shape[1:] != (3, 4):
-        raise ValueError(f"RT must have shape (B, 3, 4), got {tuple(RT.shape)}")
-    bottom = torch.zeros(RT.shape[0], 1, 4, dtype=RT.dtype, device=RT.device)
-    bottom[:, 0, 3] = 1.0
-    return torch.cat([RT, bottom], dim=1)
-
-
-def world_to_camera(points: Tensor, RT: Tensor) -> Tensor:
-    """Map world points to the camera frame with kornia.
-
-    Args:
-        points: (B, N, 3) float world coordinates.
-        RT: (B, 3, 4) float world->camera extrinsics.
-
-    Returns:
-        (B, N, 3) float camera coordinates (z > 0 in front of the camera).
-    """
-    _check_points(points)
-    if RT.dim() != 3 or RT.shape[1:] != (3, 4) or RT.shape[0] != points.shape[0]:
-        raise ValueError(f"RT must have shape (B, 3, 4) with B={points.shape[0]}, got {tuple(RT.shape)}")
-    return transform_points(rt_to_matrix(RT).to(points.dtype), points)
 
 
 def camera_to_pixel(points_cam: Tensor, K: Tensor, min_depth: float = 1e-6) -> Tensor:

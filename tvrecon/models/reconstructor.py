@@ -12,6 +12,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from tvrecon.geometry import rotate_to_camera
 from tvrecon.models.backbone import ResNet18Backbone
 from tvrecon.models.fusion import TactileVisualFusion, TouchPlacement, locate_touches
 from tvrecon.models.gcn import MeshDeformer
@@ -155,6 +156,6 @@ class TactileVisualReconstructor(nn.Module):
             return None
         feats = self.tactile(tactile.flatten(0, 1)[idx])  # 4 x (N, C_i, h_i, w_i)
         # press directions in the camera frame (R d), the frame of the predicted mesh (see tvrecon.models.fusion)
-        dirs_cam = directions @ RT[:, :, :3].transpose(1, 2)  # (B, T, 3)
+        dirs_cam = rotate_to_camera(directions, RT)  # (B, T, 3)
         dir_emb = self.fusion.embed_directions(dirs_cam.flatten(0, 1)[idx].to(tactile.dtype), placement.depth)
         return feats, dir_emb, placement

@@ -26,11 +26,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from tvrecon.geometry import rotate_to_camera, world_to_camera
 from tvrecon.losses.chamfer import nearest_neighbors
 from tvrecon.models.backbone import ResNet18Backbone
 from tvrecon.models.ellipsoid import unpool_features
 from tvrecon.models.gcn import DeformationBlock, MeshDeformer
-from tvrecon.models.projection import world_to_camera
 
 __all__ = [
     "TouchDeformationBlock",
@@ -325,7 +325,7 @@ class TouchGeometryReconstructor(nn.Module):
             patch_mask: (B, T, Q) bool; touch_mask: (B, T) bool or None (all).
         """
         world = select_patch_points(patch_points, patch_normals, patch_mask, touch_mask, self.per_touch)
-        return TouchPoints(world_to_camera(world.points, RT), world.normals @ RT[:, :, :3].transpose(1, 2), world.mask)
+        return TouchPoints(world_to_camera(world.points, RT), rotate_to_camera(world.normals, RT), world.mask)
 
     def forward(
         self,

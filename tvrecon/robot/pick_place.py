@@ -13,7 +13,6 @@ every control phase. Writes ``pick_place.gif``, ``pick_place_strip.png`` and ``p
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import sys
 import time
@@ -27,6 +26,7 @@ import trimesh
 from tqdm.auto import tqdm
 
 from tvrecon.atomic import atomic_open
+from tvrecon.config_utils import coerce_config
 from tvrecon.robot.finger import FingerReading, LazySimulator, PadConfig, TactileFinger, sense_fingers
 from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
 from tvrecon.robot.scene import (
@@ -91,20 +91,7 @@ class PickPlaceConfig:
     @classmethod
     def from_dict(cls, d: dict) -> PickPlaceConfig:
         """Build from a plain (Hydra/OmegaConf container) dict; nested dicts fill the nested dataclasses."""
-        d = dict(d)
-        known = {f.name for f in dataclasses.fields(cls)}
-        bad = sorted(set(d) - known)
-        if bad:
-            raise ValueError(f"unknown pick_place option(s) {bad}; valid: {sorted(known)}")
-        nested = {"scene": SceneConfig, "camera": CameraConfig, "pad": PadConfig}
-        for key, typ in nested.items():
-            if key in d and isinstance(d[key], dict):
-                names = {f.name for f in dataclasses.fields(typ)}
-                bad = sorted(set(d[key]) - names)
-                if bad:
-                    raise ValueError(f"unknown {key} option(s) {bad}; valid: {sorted(names)}")
-                d[key] = typ(**{k: tuple(v) if isinstance(v, list) else v for k, v in d[key].items()})
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        return coerce_config(cls, d, "pick_place")
 
 
 @dataclass

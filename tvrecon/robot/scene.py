@@ -22,6 +22,8 @@ import pybullet as p
 import pybullet_data
 import trimesh
 
+from tvrecon.geometry import check_mesh
+
 __all__ = [
     "PANDA_ARM_JOINTS",
     "PANDA_FINGER_JOINTS",
@@ -83,12 +85,7 @@ def prepare_object_mesh(mesh: trimesh.Trimesh, size: float) -> trimesh.Trimesh:
     Returns:
         A new trimesh in the object's body frame (vertices (V,3) float64 in metres, centre of mass at 0).
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"expected a trimesh.Trimesh, got {type(mesh).__name__}; load user meshes with trimesh.load")
-    if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
-        raise ValueError("object mesh is empty (0 vertices or faces): pass a mesh with triangles")
-    if not np.isfinite(mesh.vertices).all():
-        raise ValueError("object mesh has NaN/inf vertices: clean the mesh before building the scene")
+    check_mesh(mesh, "object mesh")
     if not size > 0:
         raise ValueError(f"object size must be > 0 metres, got {size}")
     m = mesh.copy()

@@ -158,9 +158,11 @@ class MeshCollider:
         device: str | torch.device = "cpu",
         n_views: int = 26,
     ) -> None:
-        from .voxelize import _check_mesh, carve_points, surface_samples
+        from tvrecon.geometry import check_mesh
 
-        _check_mesh(mesh)
+        from .voxelize import carve_points, surface_samples
+
+        check_mesh(mesh)
         if n_grid < 4:
             raise ValueError(f"n_grid must be >= 4, got {n_grid}")
         dx = 1.0 / n_grid

@@ -10,11 +10,14 @@ autograd derivative is well defined at repeated singular values (e.g. the rest s
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
 __all__ = [
     "lame_parameters",
+    "p_wave_speed",
     "det3",
     "cofactor3",
     "polar_decomposition",
@@ -45,6 +48,23 @@ def lame_parameters(E: float | Tensor, nu: float | Tensor) -> tuple[float | Tens
     mu = E / (2.0 * (1.0 + nu))
     lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
     return mu, lam
+
+
+def p_wave_speed(E: float | Tensor, nu: float | Tensor, rho: float) -> float:
+    """Elastic P-wave speed ``c = sqrt((lambda + 2 mu) / rho)``, the speed that bounds the CFL step and the press.
+
+    Args:
+        E: Young's modulus, > 0 (python float or 0-dim tensor: its current value is used).
+        nu: Poisson ratio in [0, 0.5) (python float or 0-dim tensor).
+        rho: density, > 0.
+
+    Returns:
+        c in domain units per second (python float).
+    """
+    if not float(rho) > 0:
+        raise ValueError(f"density rho must be > 0, got {rho}")
+    mu, lam = lame_parameters(E, nu)
+    return math.sqrt((float(lam) + 2.0 * float(mu)) / float(rho))
 
 
 def _check_mats(F: Tensor, name: str = "F") -> None:

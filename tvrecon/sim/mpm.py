@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from .colliders import Collider
-from .materials import fixed_corotated_kirchhoff, lame_parameters, polar_decomposition
+from .materials import fixed_corotated_kirchhoff, lame_parameters, p_wave_speed, polar_decomposition
 
 __all__ = ["MPMConfig", "ParticleState", "MLSMPM", "cfl_dt"]
 
@@ -66,10 +66,7 @@ def cfl_dt(cfg: MPMConfig) -> float:
         raise ValueError(f"rho must be > 0, got {cfg.rho}")
     if not 0 < cfg.cfl <= 1:
         raise ValueError(f"cfl must be in (0, 1], got {cfg.cfl}")
-    mu, lam = lame_parameters(cfg.E, cfg.nu)
-    mu, lam = float(mu), float(lam)
-    c = math.sqrt((lam + 2.0 * mu) / cfg.rho)
-    return cfg.cfl * (1.0 / cfg.n_grid) / c
+    return cfg.cfl * (1.0 / cfg.n_grid) / p_wave_speed(cfg.E, cfg.nu, cfg.rho)
 
 
 @dataclass

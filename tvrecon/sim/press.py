@@ -31,7 +31,10 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from tvrecon.config_utils import check_known_keys, field_names
+from tvrecon.geometry import check_mesh
 from tvrecon.sim import colliders as _colliders
+from tvrecon.sim.materials import p_wave_speed
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
 from tvrecon.sim.sensor import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice, sensor_frame
 
@@ -215,17 +218,6 @@ def _touch_z(dx: float) -> float:
     return 0.5 + 0.5 * dx
 
 
-def _check_mesh(mesh: trimesh.Trimesh) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
-        raise ValueError(
-            f"mesh is empty ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces): pass a mesh with triangles"
-        )
-    if not np.isfinite(np.asarray(mesh.vertices)).all():
-        raise ValueError("mesh has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
-
-
 def _as_vec3(value, name: str) -> Tensor:
     t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not isinstance(value, Tensor) else value)
     t = t.detach().to(torch.float32).cpu()
@@ -278,10 +270,8 @@ class EIPSimulator:
 
     # ------------------------------------------------------------------ configuration
     def _configs(self, overrides: dict) -> tuple[SensorConfig, PressConfig]:
-        s_names, p_names = set(SensorConfig.field_names()), {f.name for f in dataclasses.fields(PressConfig)}
-        bad = sorted(set(overrides) - s_names - p_names)
-        if bad:
-            raise ValueError(f"unknown press option(s) {bad}; valid: {sorted(s_names | p_names)}")
+        s_names, p_names = set(field_names(SensorConfig)), set(field_names(PressConfig))
+        check_known_keys(overrides, s_names | p_names, "press")
         s = dataclasses.replace(self.sensor, **{k: v for k, v in overrides.items() if k in s_names})
         p = dataclasses.replace(self.cfg, **{k: v for k, v in overrides.items() if k in p_names})
         if p.depth is not None and float(p.depth) + 0.5 > float(p.max_depth):
@@ -291,10 +281,7 @@ class EIPSimulator:
     @staticmethod
     def wave_speed(sensor: SensorConfig) -> float:
         """Elastic P-wave speed sqrt((lambda + 2 mu) / rho) in domain units / s."""
-        E, nu, rho = _scalar(sensor.E), _scalar(sensor.nu), float(sensor.rho)
-        mu = E / (2 * (1 + nu))
-        lam = E * nu / ((1 + nu) * (1 - 2 * nu))
-        return math.sqrt((lam + 2 * mu) / rho)
+        return p_wave_speed(_scalar(sensor.E), _scalar(sensor.nu), float(sensor.rho))
 
     def _mpm_config(self, s: SensorConfig, p: PressConfig) -> MPMConfig:
         cfg = MPMConfig(
@@ -318,7 +305,7 @@ class EIPSimulator:
         return 0.5 - (s.thickness + float(p.gap) + float(p.max_depth) + 4.0) * dx
 
     def _setup(self, mesh: trimesh.Trimesh, position, direction, s: SensorConfig, p: PressConfig) -> _Touch:
-        _check_mesh(mesh)
+        check_mesh(mesh)
         S, dx = float(p.domain_size), 1.0 / int(p.n_grid)
         extent_cells = float(np.ptp(np.asarray(mesh.bounds), axis=0).max()) / S * int(p.n_grid)
         if extent_cells < 1.0:  # the collider samples the object at grid nodes: below a cell it falls between them

@@ -18,10 +18,12 @@ the hand velocity:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from tvrecon import config_utils
 
 ALPHA_PROFILES = ("clamped", "linear")
 
@@ -106,7 +108,8 @@ class SensorConfig:
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
+        """Names of the config's fields (`tvrecon.config_utils.field_names`)."""
+        return config_utils.field_names(cls)
 
 
 def pad_lattice(cfg: SensorConfig, device: torch.device | str | None = None) -> Tensor:
@@ -171,7 +174,9 @@ def sensor_frame(direction: Tensor) -> Tensor:
     """Orthonormal sensor frame for a press direction.
 
     The local z axis points against the press (``e_z = -direction``); the local x axis is the world x axis
-    projected onto the contact plane (or the world y axis when the press is along x), ``e_y = e_z x e_x``.
+    projected onto the contact plane (or the world y axis when the press is along x), ``e_y = e_z x e_x``. This is
+    the helper-axis rule of `tvrecon.geometry.perpendicular_basis` (e_x = -e2 there, up to rounding), computed here
+    in float32 torch because these exact values set the pad's in-plane orientation of every tactile image.
 
     Args:
         direction: (3,) press direction in world coordinates (pointing into the object), any non-zero length.

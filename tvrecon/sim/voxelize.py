@@ -19,6 +19,7 @@ from scipy import ndimage
 from torch import Tensor
 
 from tvrecon.atomic import atomic_write_bytes
+from tvrecon.geometry import check_mesh, perpendicular_basis
 
 __all__ = [
     "VoxelGrid",
@@ -29,15 +30,6 @@ __all__ = [
     "save_particles_ply",
     "surface_samples",
 ]
-
-
-def _check_mesh(mesh: trimesh.Trimesh) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
-        raise ValueError("mesh is empty (no faces): give a mesh with at least one triangle")
-    if not np.isfinite(mesh.vertices).all():
-        raise ValueError("mesh has NaN/inf vertices: clean the mesh first")
 
 
 def view_directions(n_views: int) -> np.ndarray:
@@ -110,13 +102,6 @@ def surface_samples(
     return np.concatenate([lattice, edge]), np.concatenate([fidx[pt_tri], fidx[ed_tri]])
 
 
-def _basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(d, a)
-    u /= np.linalg.norm(u)
-    return u, np.cross(d, u)
-
-
 def carve_points(
     mesh: trimesh.Trimesh,
     points: np.ndarray | Tensor,
@@ -136,7 +121,7 @@ def carve_points(
     Returns:
         (N,) bool, True where no view sees the point as empty.
     """
-    _check_mesh(mesh)
+    check_mesh(mesh)
     pts = points.detach().cpu().double().numpy() if isinstance(points, Tensor) else np.asarray(points, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be (N, 3), got {pts.shape}")
@@ -148,7 +133,7 @@ def carve_points(
     for d in view_directions(n_views):
         if not solid.any():
             break
-        u, w = _basis(d)
+        u, w = perpendicular_basis(d)
         q = pts[solid]
         s, t, z = q @ u, q @ w, q @ d
         s0, t0 = s.min() - pixel, t.min() - pixel
@@ -211,7 +196,7 @@ def voxelize(mesh: trimesh.Trimesh, pitch: float, n_views: int = 26, padding: in
     Returns:
         VoxelGrid whose voxel centres lie on ``origin + pitch * index``.
     """
-    _check_mesh(mesh)
+    check_mesh(mesh)
     if not pitch > 0:
         raise ValueError(f"pitch must be > 0, got {pitch}")
     lo, hi = mesh.bounds

@@ -1,0 +1,80 @@
+"""Config dataclasses from Hydra/OmegaConf mappings, with one error for unknown keys.
+
+`coerce_config` builds a dataclass from an instance, a mapping or ``None``; `check_known_keys` is the same unknown-key
+error for callers that split one mapping over several dataclasses. The module depends on no other part of
+``tvrecon``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from collections.abc import Iterable, Mapping
+from typing import Any, TypeVar
+
+import numpy as np
+
+__all__ = ["check_known_keys", "coerce_config", "field_names"]
+
+C = TypeVar("C")
+
+
+def field_names(cls: type) -> tuple[str, ...]:
+    """Names of the fields of dataclass ``cls``, in declaration order."""
+    return tuple(f.name for f in dataclasses.fields(cls))
+
+
+def check_known_keys(keys: Iterable[str], valid: Iterable[str], what: str) -> None:
+    """Raise ValueError naming the keys not in ``valid`` and listing the valid ones.
+
+    Args:
+        keys: the given option names.
+        valid: the accepted option names.
+        what: what the options configure, as the error names it (e.g. ``"press"``, ``"SensorConfig"``).
+    """
+    valid = set(valid)
+    unknown = sorted(set(keys) - valid)
+    if unknown:
+        raise ValueError(f"unknown {what} option(s) {unknown}; valid: {sorted(valid)}")
+
+
+def coerce_config(cls: type[C], value: C | Mapping[str, Any] | None, what: str | None = None) -> C:
+    """Build dataclass ``cls`` from an instance, a mapping (e.g. a Hydra ``DictConfig``) or ``None`` (defaults).
+
+    Lists become tuples; an int given for a ``float`` field becomes a float (``sensor.E=3`` and ``sensor.E=3.0`` are
+    one config and one cache key); a mapping given for a field whose type is a dataclass builds that dataclass the
+    same way (its errors name the field).
+
+    Args:
+        cls: the dataclass type.
+        value: an instance of ``cls`` (returned as is), a mapping of field values, or None.
+        what: how errors name the config (default: the class name).
+
+    Returns:
+        An instance of ``cls``. Raises ValueError naming unknown keys and listing the valid ones.
+    """
+    what = what or cls.__name__
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if not isinstance(value, Mapping):
+        try:
+            from omegaconf import DictConfig, OmegaConf
+
+            if isinstance(value, DictConfig):
+                value = OmegaConf.to_container(value, resolve=True)
+        except ImportError:  # pragma: no cover
+            pass
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{what} config must be a {cls.__name__} or a mapping, got {type(value).__name__}")
+    check_known_keys(value, field_names(cls), what)
+    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
+    hints = typing.get_type_hints(cls)
+    for k, v in kwargs.items():
+        hint = hints.get(k)
+        if hint is float and isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_):
+            kwargs[k] = float(v)
+        elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(v, Mapping):
+            kwargs[k] = coerce_config(hint, v, k)
+    return cls(**kwargs)
