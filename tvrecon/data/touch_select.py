@@ -12,7 +12,7 @@ shows is decided here and nowhere else:
 - **Reconstruction** (unchanged): the dataset serves the first T of the ``max_touches`` cached touches (T drawn per
   sample from its load seed, or fixed by ``num_touches``) and
   :class:`~tvrecon.models.lit_recon.ReconstructionModule` keeps the first k of those per training sample
-  (:func:`~tvrecon.models.lit_recon.keep_first_touches`); the test modes keep the first 2 / 5 / 10. The first k
+  (:func:`~tvrecon.models.recon_batch.keep_first_touches`); the test modes keep the first 2 / 5 / 10. The first k
   touches are a random subset already (the touches of an item are drawn independently), so this is the paper's
   "1 to 10 tactile images per iteration" with a fixed set of touches per object.
 
