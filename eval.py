@@ -26,8 +26,8 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
-from train import exit_on_sigterm, fix_test_touches, report_tables, save_results  # noqa: E402
 from tvrecon.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
+from tvrecon.run import exit_on_sigterm, fix_test_touches, report_tables, save_results  # noqa: E402
 
 log = logging.getLogger("eval")
 

@@ -14,13 +14,8 @@ vs ground-truth mesh per epoch and per test class), ``meshes/*.obj``, ``metrics.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
-import signal
-import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -31,13 +26,30 @@ import hydra  # noqa: E402
 import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
-from lightning.pytorch.utilities.exceptions import SIGTERMException  # noqa: E402
-from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-from tvrecon.atomic import atomic_write_text  # noqa: E402
 from tvrecon.checkpoint import check_checkpoint  # noqa: E402
-from tvrecon.tables import build_tables, format_tables, write_tables  # noqa: E402
+from tvrecon.run import (  # noqa: E402  (also importable from train)
+    exit_on_sigterm,
+    fix_test_touches,
+    last_checkpoint,
+    report_tables,
+    save_results,
+)
 from tvrecon.viz import plot_loss_curves  # noqa: E402
+
+__all__ = [
+    "check_training_length",
+    "exit_on_sigterm",
+    "fix_test_touches",
+    "instantiate_callbacks",
+    "instantiate_loggers",
+    "last_checkpoint",
+    "main",
+    "report_tables",
+    "save_results",
+    "train",
+]
 
 log = logging.getLogger("train")
 
@@ -60,23 +72,6 @@ def instantiate_loggers(cfg: DictConfig | None) -> list[Logger]:
     return [hydra.utils.instantiate(c) for c in cfg.values() if isinstance(c, DictConfig) and "_target_" in c]
 
 
-def save_results(result: dict[str, Any], out_dir: str | Path) -> Path:
-    """Write a test result dict as ``<out_dir>/metrics.json`` (atomic)."""
-    return atomic_write_text(Path(out_dir) / "metrics.json", json.dumps(result, indent=2, sort_keys=True))
-
-
-def report_tables(results: list[dict[str, Any]], out_dir: str | Path, echo: bool = True) -> str:
-    """Build the paper tables the results allow, write them to ``<out_dir>/tables`` and print them."""
-    tables = build_tables(results)
-    if not tables:
-        return ""
-    paths = write_tables(tables, Path(out_dir) / "tables")
-    text = format_tables(tables)
-    if echo:
-        print("\n" + text + f"\n(tables written to {paths[0].parent})", flush=True)
-    return text
-
-
 def _csv_metrics(trainer: L.Trainer) -> Path | None:
     for lg in trainer.loggers:
         if isinstance(lg, CSVLogger):
@@ -85,64 +80,10 @@ def _csv_metrics(trainer: L.Trainer) -> Path | None:
     return None
 
 
-def last_checkpoint(trainer: L.Trainer) -> Path | None:
-    """The newest checkpoint the trainer's ModelCheckpoint wrote (its ``last.ckpt`` when saved), None if none yet."""
-    cb = trainer.checkpoint_callback
-    if cb is None:
-        return None
-    for attr in ("last_model_path", "best_model_path"):
-        path = getattr(cb, attr, "")
-        if path and Path(path).is_file():
-            return Path(path)
-    dirpath = getattr(cb, "dirpath", None)
-    ckpts = sorted(Path(dirpath).glob("*.ckpt"), key=lambda p: p.stat().st_mtime) if dirpath else []
-    return ckpts[-1] if ckpts else None
-
-
-@contextmanager
-def exit_on_sigterm(trainer: L.Trainer, stage: str, hint: str | None = None) -> Iterator[None]:
-    """Turn Lightning's SIGTERM stop (a ``SystemExit`` with code 0) into exit status 143 and a message.
-
-    Lightning stops its loops cleanly on SIGTERM but raises ``SIGTERMException``, a ``SystemExit(None)``: the
-    process exited 0 and a script or scheduler took a killed run for a finished one. Here the run says that it was
-    terminated, at which epoch/step and what to do next (``hint``; by default the last checkpoint to resume from),
-    then exits with 128 + SIGTERM like a process killed by the signal.
-    """
-    try:
-        yield
-    except SIGTERMException:
-        if hint is None:
-            ckpt = last_checkpoint(trainer)
-            hint = (
-                f"the last checkpoint is {ckpt.resolve()}: resume with ckpt_path={ckpt.resolve()}"
-                if ckpt is not None
-                else "no checkpoint was saved before the signal: rerun from scratch"
-            )
-        msg = f"{stage} terminated by SIGTERM at epoch {trainer.current_epoch}, step {trainer.global_step}; {hint}"
-        log.error(msg)
-        print(msg, file=sys.stderr, flush=True)
-        sys.exit(128 + signal.SIGTERM)
-
-
-def fix_test_touches(data_cfg: DictConfig) -> None:
-    """Give every reconstruction test sample ``max_touches`` touches (``data.test.num_touches``), in place.
-
-    The reconstruction datasets draw T in [min_touches, max_touches] per sample; the test modes mask to the first
-    k = 2, 5, 10 touches, which only means k touches when every test sample has at least k. Classification data
-    and an explicit ``data.test.num_touches`` are left alone.
-    """
-    if not str(data_cfg.get("_target_", "")).endswith("ReconstructionDataModule") or not data_cfg.get("test"):
-        return
-    if data_cfg.test.get("num_touches") is None and data_cfg.get("max_touches") is not None:
-        with open_dict(data_cfg):
-            data_cfg.test.num_touches = int(data_cfg.max_touches)
-        log.info("test split: every sample gets data.max_touches=%d touches", int(data_cfg.max_touches))
-
-
 def check_training_length(cfg: DictConfig) -> None:
     """Refuse epoch counts that would report an untrained model or never reach the test.
 
-    ``trainer.max_epochs=0`` fits nothing, and the test then printed Tables 3/4 of the random initial weights under
+    ``trainer.max_epochs=0`` fits nothing, and the test would print Tables 3/4 of the random initial weights under
     the experiment's name; it is refused unless ``ckpt_path`` gives the weights (then only a warning: the checkpoint
     is tested as it is). ``max_epochs=-1`` is Lightning's "train forever": refused unless ``trainer.max_steps`` or
     ``trainer.max_time`` bounds the run, since without them no test or table ever comes.

@@ -318,7 +318,7 @@ class ReconstructionDataset(GeneratedDataset):
     the cache of the split is shared). Which touches every path uses is summarised in
     :mod:`tvrecon.data.touch_select`.
 
-    Sample (INTERFACES.md section 2):
+    Sample (``docs/batch-schema.md``):
         image (3,H,W) float32 [0,1]; K (3,3) float32; RT (3,4) float32 world->camera;
         tactile (max_touches,3,h,w) float32 (scaled grid cells, zeros where padded);
         positions (max_touches,3), directions (max_touches,3) float32 world (zeros where padded);
@@ -473,8 +473,8 @@ class TactileClassificationDataset(GeneratedDataset):
     (:func:`tvrecon.data.tactile_augment.rotate_tactile`; the pad's in-plane orientation is arbitrary). Positions and
     directions are left as they are. Needs square tactile images.
 
-    Sample: tactile (N,3,h,w) float32 (scaled grid cells), touch_mask (N,) bool (all True), positions (N,3),
-    directions (N,3) float32 world, label int64.
+    Sample (``docs/batch-schema.md``): tactile (N,3,h,w) float32 (scaled grid cells), touch_mask (N,) bool (all
+    True), positions (N,3), directions (N,3) float32 world, label int64.
 
     Args (in addition to :class:`GeneratedDataset`):
         num_objects: number of objects (items).

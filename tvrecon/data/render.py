@@ -1,4 +1,4 @@
-"""Single-view RGB rendering with known cameras (issue 3, "Views").
+"""Single-view RGB rendering with known cameras.
 
 A pinhole camera in the OpenCV convention looks at the object from a random point on a sphere; the view is
 ray cast on the CPU with trimesh's Embree intersector (one primary ray per pixel centre) and shaded Lambert plus
@@ -22,7 +22,7 @@ from torch import Tensor
 
 from tvrecon.geometry import check_mesh, world_to_camera
 
-try:  # Embree (embreex) is ~50x faster than the pure-python triangle intersector.
+try:  # Embree (embreex) ray casts, much faster than the pure-python triangle intersector.
     from trimesh.ray.ray_pyembree import RayMeshIntersector as _Intersector
 except ImportError:  # pragma: no cover - embreex is a declared dependency
     from trimesh.ray.ray_triangle import RayMeshIntersector as _Intersector

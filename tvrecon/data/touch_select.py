@@ -7,12 +7,12 @@ shows is decided here and nowhere else:
   training draws N of the M touches afresh at every visit (paper section 4.2: "during each training iteration, we
   randomly choose N tactile images"), in random order, reproducibly from ``(item seed, epoch)`` where the item seed
   is the dataset's load seed of ``(seed, split, index)``; evaluation takes a fixed seeded subset, sorted, the same
-  for every epoch (the subset the dataset used before this module existed, so results are comparable). The
+  for every epoch. The
   :class:`~tvrecon.models.lit_cls.ClassificationModule` keeps the first N touches it is given; it draws nothing.
-- **Reconstruction** (unchanged): the dataset serves the first T of the ``max_touches`` cached touches (T drawn per
+- **Reconstruction**: the dataset serves the first T of the ``max_touches`` cached touches (T drawn per
   sample from its load seed, or fixed by ``num_touches``) and
   :class:`~tvrecon.models.lit_recon.ReconstructionModule` keeps the first k of those per training sample
-  (:func:`~tvrecon.models.lit_recon.keep_first_touches`); the test modes keep the first 2 / 5 / 10. The first k
+  (:func:`~tvrecon.models.recon_batch.keep_first_touches`); the test modes keep the first 2 / 5 / 10. The first k
   touches are a random subset already (the touches of an item are drawn independently), so this is the paper's
   "1 to 10 tactile images per iteration" with a fixed set of touches per object.
 

@@ -1,4 +1,4 @@
-"""Touch policies (issue 3, "Touches"): where, in which direction and how hard the sensor presses.
+"""Touch policies: where, in which direction and how hard the sensor presses.
 
 A touch is a contact point sampled on the surface (area-weighted, optionally only where the camera sees the
 object), a press direction along the inward normal perturbed uniformly inside a cone, and a press strength (the

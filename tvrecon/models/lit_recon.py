@@ -2,30 +2,17 @@
 
 Training: the ground-truth surface points and normals (world frame) are mapped to the camera frame with the
 view's RT, the number of touches is drawn per sample (k ~ U{min_touches..max_touches}, later touches masked out;
-the paper's "1 to 10 tactile images per iteration"; this is the only draw: the reconstruction data presets serve
-all ``max_touches`` cached touches, so training sees k uniform rather than the smaller min of two draws; which
-touches every path uses is summarised in :mod:`tvrecon.data.touch_select`), and the Pixel2Mesh loss terms of
+the paper's "1 to 10 tactile images per iteration"; the reconstruction data presets serve all ``max_touches``
+cached touches, so this is the only draw; which touches every path uses is summarised in
+:mod:`tvrecon.data.touch_select`), and the Pixel2Mesh loss terms of
 every deformation stage are weighted by the ``loss_weights`` mapping and summed.
 Each term is logged (progress bar) as ``train/<term>``.
 
 Validation logs ``val/loss`` and ``val/chamfer`` (the x1e-3 metric with every available touch) and renders the
 first validation sample (prediction vs ground truth) to ``<run>/renders/epoch_<n>.png`` each epoch.
 
-Test: every batch is evaluated in the modes of the network (see :mod:`tvrecon.tables`):
-
-- ``mode="fusion"``: ``"visual"`` (every touch masked out) and ``"tv@k"`` for k in ``eval_touches``;
-- ``mode="visual_only"``: ``"visual"``;
-- ``mode="tactile_only"``: ``"tactile@k"`` (the network blanks the view itself).
-
-With ``touch_controls`` a model that reads touches is also tested with its most touches whose content is replaced
-(the positions kept, so the same pixels receive an embedding): ``"<mode>:other"`` takes the tactile images and
-directions of the next sample in the batch (another object; batches of one sample are skipped), ``"<mode>:blank"``
-zero tactile images. A model that has learned to read the touches does worse in both than with its own.
-
-"first k touches" means the k first valid touches of the sample (fewer if the sample has fewer; the mean number
-actually used is reported per mode as ``touches``). Per mode it accumulates the mean chamfer (x1e-3), F-scores and
-the per-class chamfer, exports one predicted mesh per class as ``.obj`` and one side-by-side render per class, and
-stores the JSON-ready dict in :attr:`ReconstructionModule.test_results`.
+Test: the protocol of :mod:`tvrecon.models.recon_protocol` (modes, touch controls, per-class sums, mesh export),
+mixed in by :class:`ReconstructionTestProtocol`; results in :attr:`ReconstructionModule.test_results`.
 """
 
 from __future__ import annotations
@@ -39,13 +26,13 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
-from tvrecon.geometry import rotate_to_camera, world_to_camera
 from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
 from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
-from tvrecon.models.refine import refine_to_patches
+from tvrecon.models.recon_batch import PATCH_KEYS, TOUCH_CONTROLS, gt_to_camera, keep_first_touches
+from tvrecon.models.recon_protocol import ReconstructionTestProtocol
 from tvrecon.models.touch_geometry import patch_to_mesh_loss
-from tvrecon.viz import export_obj, render_mesh_comparison
+from tvrecon.viz import render_mesh_comparison
 
 __all__ = ["TOUCH_CONTROLS", "ReconstructionModule", "gt_to_camera", "keep_first_touches"]
 
@@ -57,59 +44,9 @@ MODALITY = {
     "tactile_only": "tactile",
     "touch_geometry": "tactile_visual",  # tvrecon.models.touch_geometry (reads the contact patches)
 }
-PATCH_KEYS = ("patch_points", "patch_normals", "patch_mask")
-TOUCH_CONTROLS = ("other", "blank")  # test modes with the touches' content replaced (touch_controls)
 
 
-def gt_to_camera(points: Tensor, normals: Tensor, RT: Tensor) -> tuple[Tensor, Tensor]:
-    """Map ground-truth surface points and normals from the world (object) frame to the camera frame.
-
-    Args:
-        points: (B, N, 3) float world points.
-        normals: (B, N, 3) float world unit normals.
-        RT: (B, 3, 4) float world->camera ``[R|t]``.
-
-    Returns:
-        points (B, N, 3) ``R x + t`` and normals (B, N, 3) ``R n``, float.
-    """
-    if points.dim() != 3 or points.shape[-1] != 3 or normals.shape != points.shape:
-        raise ValueError(
-            f"points and normals must both have shape (B, N, 3), got {tuple(points.shape)} and {tuple(normals.shape)}"
-        )
-    if RT.shape != (points.shape[0], 3, 4):
-        raise ValueError(f"RT must have shape (B, 3, 4) with B={points.shape[0]}, got {tuple(RT.shape)}")
-    return world_to_camera(points, RT), rotate_to_camera(normals, RT)
-
-
-def keep_first_touches(touch_mask: Tensor, k: int | Tensor) -> Tensor:
-    """Keep the first ``k`` valid touches of each sample.
-
-    Args:
-        touch_mask: (B, T) bool, True for real touches.
-        k: touches to keep (0 masks every touch out): one int for the batch, or a (B,) integer tensor per sample.
-
-    Returns:
-        (B, T) bool mask with at most k (or k[b]) True per row.
-    """
-    if touch_mask.dim() != 2 or touch_mask.dtype != torch.bool:
-        raise ValueError(f"touch_mask must be a (B, T) bool tensor, got {tuple(touch_mask.shape)} {touch_mask.dtype}")
-    if isinstance(k, Tensor):
-        if k.shape != (touch_mask.shape[0],) or k.is_floating_point() or k.dtype == torch.bool:
-            raise ValueError(
-                f"per-sample k must be a ({touch_mask.shape[0]},) integer tensor, got {tuple(k.shape)} {k.dtype}"
-            )
-        if bool((k < 0).any()):
-            raise ValueError(f"k must be >= 0, got {k.tolist()}")
-        limit = k.to(touch_mask.device).unsqueeze(1)  # (B, 1)
-    else:
-        if k < 0:
-            raise ValueError(f"k must be >= 0, got {k}")
-        limit = k
-    rank = touch_mask.long().cumsum(dim=1)  # (B, T): 1-based index among valid touches
-    return touch_mask & (rank <= limit)
-
-
-class ReconstructionModule(L.LightningModule):
+class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
     """Trains and evaluates a :class:`~tvrecon.models.reconstructor.TactileVisualReconstructor`.
 
     Args:
@@ -202,8 +139,8 @@ class ReconstructionModule(L.LightningModule):
         """Run the network on a batch with the given touch mask (None = no touch at all).
 
         Args:
-            batch: collated sample dict (image (B,3,H,W), K (B,3,3), RT (B,3,4), tactile (B,T,3,h,w),
-                positions (B,T,3), directions (B,T,3)).
+            batch: collated sample dict (``docs/batch-schema.md``): image (B,3,H,W), K (B,3,3), RT (B,3,4),
+                tactile (B,T,3,h,w), positions (B,T,3), directions (B,T,3).
             touch_mask: (B, T) bool, or None to run without any touch.
         Returns:
             the network's output dict (``verts`` per stage (B, V_s, 3) camera frame, ``faces`` (F_s, 3), ...).
@@ -316,190 +253,8 @@ class ReconstructionModule(L.LightningModule):
             "fscore": fscore(verts, faces, points, thresholds, num_samples=n, seed=seed) if thresholds else None,
         }
 
-    def _modes(self) -> list[tuple[str, int]]:
-        if self.modality == "visual":
-            refined = [(f"visual+refine@{k}", k) for k in self.eval_touches] if self.hparams.get("refine") else []
-            return [("visual", 0), *refined]
-        prefix = "tactile" if self.modality == "tactile" else "tv"
-        modes = [] if self.modality == "tactile" else [("visual", 0)]
-        modes += [(f"{prefix}@{k}", k) for k in self.eval_touches]
-        if self.hparams.get("touch_controls"):
-            k = self.eval_touches[-1]
-            modes += [(f"{prefix}@{k}:{control}", k) for control in TOUCH_CONTROLS]
-        if self.hparams.get("refine"):
-            modes += [(f"{prefix}@{k}+refine", k) for k in self.eval_touches]
-        return modes
-
-    def refined(self, out: Mapping[str, list[Tensor]], batch: Mapping[str, Tensor], mask: Tensor) -> dict:
-        """The output with its last stage's vertices pulled onto the contact patches of the touches in ``mask``.
-
-        Args:
-            out: network output (camera-frame ``verts`` per stage, ``edges`` per stage).
-            batch: collated samples with ``patch_points`` (B, T, Q, 3) world and ``patch_mask`` (B, T, Q) bool, and RT.
-            mask: (B, T) bool, the touches to use.
-        """
-        if "patch_points" not in batch or "patch_mask" not in batch:
-            raise ValueError(
-                "refine needs the samples' contact patches (patch_points, patch_mask): use the datasets "
-                "of tvrecon.data (ReconstructionDataset exposes them)"
-            )
-        B, T, Q, _ = batch["patch_points"].shape
-        points = world_to_camera(batch["patch_points"].reshape(B, T * Q, 3), batch["RT"])  # (B, T*Q, 3)
-        valid = (batch["patch_mask"] & mask[:, :, None]).reshape(B, T * Q)  # (B, T*Q)
-        # keep the contact points only (padded per sample): the nearest-vertex search then costs what they cost
-        n = max(int(valid.sum(1).max()), 1)
-        order = torch.argsort(valid.to(torch.int8), dim=1, descending=True, stable=True)[:, :n]  # (B, n)
-        points = torch.gather(points, 1, order[..., None].expand(-1, -1, 3))
-        valid = torch.gather(valid, 1, order)
-        result = dict(out)
-        result["verts"] = list(out["verts"])
-        result["verts"][-1] = refine_to_patches(
-            out["verts"][-1], out["edges"][-1], points, valid, steps=int(self.hparams.get("refine_steps", 40))
-        )
-        return result
-
-    @staticmethod
-    def control_batch(batch: Mapping[str, Tensor], control: str) -> dict[str, Tensor] | None:
-        """The batch with its touches' content replaced (positions and masks kept), None if it cannot be.
-
-        Args:
-            batch: collated sample dict with ``tactile`` (B, T, 3, h, w) and ``directions`` (B, T, 3).
-            control: ``"other"`` (the next sample's tactile images and directions; None for B = 1) or ``"blank"``
-                (zero tactile images, own directions). The contact patches (``patch_*``, when present) follow the
-                content: ``"other"`` takes the next sample's (its world points: the other object's surface), and
-                ``"blank"`` has no contact point (a blank image is the pad at rest: nothing touched).
-        """
-        out = dict(batch)
-        if control == "other":
-            if batch["tactile"].shape[0] < 2:
-                return None
-            out["tactile"] = batch["tactile"].roll(-1, dims=0)
-            out["directions"] = batch["directions"].roll(-1, dims=0)
-            for key in PATCH_KEYS:
-                if key in batch:
-                    out[key] = batch[key].roll(-1, dims=0)
-        elif control == "blank":
-            out["tactile"] = torch.zeros_like(batch["tactile"])
-            if "patch_mask" in batch:
-                out["patch_mask"] = torch.zeros_like(batch["patch_mask"])
-        else:
-            raise ValueError(f"control must be one of {TOUCH_CONTROLS}, got {control!r}")
-        return out
-
-    def _names(self) -> list[str]:
-        if self.class_names is not None:
-            return self.class_names
-        dm = getattr(self.trainer, "datamodule", None)
-        library = getattr(dm, "library", None)
-        classes = getattr(library, "classes", None)
-        return [str(c) for c in classes] if classes is not None else []
-
     def _out_dir(self) -> Path:
         return Path(self.output_dir or self.trainer.default_root_dir)
-
-    def on_test_epoch_start(self) -> None:
-        n_cls = max(len(self._names()), 1)
-        thresholds = list(self.hparams.fscore_thresholds)
-        self._acc = {
-            mode: {
-                "chamfer": torch.zeros((), dtype=torch.float64, device=self.device),
-                "count": torch.zeros((), dtype=torch.float64, device=self.device),
-                "touches": torch.zeros((), dtype=torch.float64, device=self.device),
-                "fscore": torch.zeros(len(thresholds), dtype=torch.float64, device=self.device),
-                "class_sum": torch.zeros(n_cls, dtype=torch.float64, device=self.device),
-                "class_count": torch.zeros(n_cls, dtype=torch.float64, device=self.device),
-            }
-            for mode, _ in self._modes()
-        }
-        self._exported = set()
-
-    def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        points, _ = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
-        labels = batch["label"].long()
-        outputs: dict[tuple[str, int], dict[str, list[Tensor]]] = {}  # (control, touches fed) -> network output
-        for mode, k in self._modes():
-            mask = None if k == 0 else keep_first_touches(batch["touch_mask"], k)
-            control = mode.partition(":")[2]
-            inputs = self.control_batch(batch, control) if control else batch
-            if inputs is None:
-                continue
-            # a refined mode reuses its unrefined mode's prediction ("visual+refine@k": the no-touch one, k touches)
-            fed = 0 if mode.startswith("visual") else k
-            if (control, fed) not in outputs:
-                outputs[(control, fed)] = self(inputs, None if fed == 0 else mask)
-            out = outputs[(control, fed)]
-            if "+refine" in mode:
-                assert mask is not None
-                out = self.refined(out, batch, mask)
-            metrics = self._metrics(out, points)
-            cd = metrics["chamfer"].double()  # (B,)
-            acc = self._acc[mode]
-            acc["chamfer"] += cd.sum()
-            acc["count"] += cd.numel()
-            acc["touches"] += 0 if mask is None else mask.sum()
-            if metrics["fscore"] is not None:
-                acc["fscore"] += metrics["fscore"].double().sum(0)
-            n_cls = acc["class_sum"].numel()
-            if int(labels.max()) >= n_cls:
-                raise ValueError(f"label {int(labels.max())} outside the {n_cls} known classes; pass class_names")
-            acc["class_sum"].index_add_(0, labels, cd)
-            acc["class_count"].index_add_(0, labels, torch.ones_like(cd))
-            if self.hparams.export and not control:
-                self._export(mode, out, points, labels, batch["image"])
-            self.log(f"test/chamfer_{mode}", cd.mean(), batch_size=cd.numel(), sync_dist=True)
-
-    def _export(
-        self, mode: str, out: Mapping[str, list[Tensor]], points: Tensor, labels: Tensor, image: Tensor
-    ) -> None:
-        names = self._names()
-        for b, label in enumerate(labels.tolist()):
-            if (mode, label) in self._exported:
-                continue
-            self._exported.add((mode, label))
-            cls = names[label] if label < len(names) else str(label)
-            tag = f"{cls}_{mode.replace('@', '')}"
-            verts, faces = out["verts"][-1][b].detach().cpu(), out["faces"][-1].detach().cpu()
-            export_obj(verts, faces, self._out_dir() / "meshes" / f"{tag}.obj")
-            render_mesh_comparison(
-                verts,
-                faces,
-                points[b].detach().cpu(),
-                self._out_dir() / "renders" / f"test_{tag}.png",
-                f"{self.hparams.name} {cls} ({mode})",
-                image=image[b].detach().cpu(),
-            )
-
-    def on_test_epoch_end(self) -> None:
-        names = self._names()
-        thresholds = [float(t) for t in self.hparams.fscore_thresholds]
-        modes: dict[str, Any] = {}
-        reduce = self.trainer.strategy.reduce
-        for mode, k in self._modes():
-            acc = {key: reduce(value, reduce_op="sum") for key, value in self._acc[mode].items()}
-            count = float(acc["count"])
-            if count == 0:
-                continue
-            per_class = {}
-            for c in range(acc["class_sum"].numel()):
-                if float(acc["class_count"][c]) > 0:
-                    name = names[c] if c < len(names) else str(c)
-                    per_class[name] = float(acc["class_sum"][c] / acc["class_count"][c])
-            entry = {
-                "chamfer": float(acc["chamfer"]) / count,
-                "count": int(count),
-                "touches": float(acc["touches"]) / count,
-                "requested_touches": k,
-                "per_class": per_class,
-            }
-            for i, t in enumerate(thresholds):
-                entry[f"fscore@{t:g}"] = float(acc["fscore"][i]) / count
-            modes[mode] = entry
-        self.test_results = {
-            "task": "reconstruction",
-            "name": str(self.hparams.name),
-            "modality": self.modality,
-            "modes": modes,
-        }
 
     def configure_optimizers(self) -> Any:
         scales = self.hparams.get("lr_scales")

@@ -15,7 +15,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-__all__ = ["Collider", "SphereCollider", "PlaneCollider", "MeshCollider", "clip_to_box"]
+__all__ = ["Collider", "SphereCollider", "PlaneCollider", "MeshCollider", "clip_to_box", "collide_grid"]
 
 
 @runtime_checkable
@@ -29,6 +29,72 @@ class Collider(Protocol):
     def normal(self, points: Tensor) -> Tensor:
         """(N, 3) float points -> (N, 3) unit outward normal (gradient of the sdf)."""
         ...
+
+
+def collide_grid(
+    gv: Tensor,
+    gm: Tensor,
+    colliders: Sequence[Collider | None],
+    lo: Tensor,
+    D: Sequence[int],
+    dx: float,
+    dt: float,
+    friction: float = 0.0,
+) -> tuple[Tensor, Tensor]:
+    """Remove the velocity component into each collider on grid nodes with sdf < 0 (Coulomb friction optional).
+
+    The collider step of the MLS-MPM grid update (``MLSMPM._grid_update``), on the solver's block grid: B scenes of
+    ``D[0] x D[1] x D[2]`` nodes each, scene ``b``'s block starting at global node ``lo[b]``.
+
+    Args:
+        gv: (N, 3) grid velocities, N = B * D[0] * D[1] * D[2].
+        gm: (N,) grid masses (nodes without mass are left alone).
+        colliders: one collider (or None) per scene.
+        lo: (B, 3) int64 block origins; D: block dims.
+        dx, dt: cell size and time step; friction: Coulomb coefficient (0 = frictionless slip).
+
+    Returns the new (N, 3) grid velocity and the (B, 3) force on the particles (sum m dv / dt per scene)."""
+    dtype, device = gv.dtype, gv.device
+    B = len(colliders)
+    force = torch.zeros(B, 3, dtype=dtype, device=device)
+    if all(c is None for c in colliders):
+        return gv, force
+    nb = D[0] * D[1] * D[2]
+    a0 = torch.arange(D[0], device=device)
+    a1 = torch.arange(D[1], device=device)
+    a2 = torch.arange(D[2], device=device)
+    local = torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(nb, 3)  # (nb, 3)
+    lo_list = lo.tolist()
+    pieces = []
+    forces = []
+    mu_f = friction
+    for b in range(B):
+        vb = gv[b * nb : (b + 1) * nb]
+        col = colliders[b]
+        if col is None:
+            pieces.append(vb)
+            forces.append(torch.zeros(3, dtype=dtype, device=device))
+            continue
+        mb = gm[b * nb : (b + 1) * nb]
+        node = local + torch.tensor(lo_list[b], device=device)  # (nb, 3) global node indices
+        if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
+            sdf, n = col.at_nodes(node)
+            sdf, n = sdf.to(dtype), n.to(dtype)
+        else:
+            pos = node.to(dtype) * dx  # (nb, 3) node positions
+            sdf = col.sdf(pos)
+            n = col.normal(pos)
+        vn = (vb * n).sum(1, keepdim=True)  # (nb, 1)
+        hit = (sdf < 0)[:, None] & (vn < 0) & (mb > 0)[:, None]
+        vt = vb - vn * n
+        if mu_f > 0:
+            vt_norm = vt.norm(dim=1, keepdim=True)
+            safe = torch.where(vt_norm > 0, vt_norm, torch.ones_like(vt_norm))
+            vt = vt * torch.clamp(1.0 + mu_f * vn / safe, min=0.0)
+        vb_new = torch.where(hit, vt, vb)
+        pieces.append(vb_new)
+        forces.append((mb[:, None] * (vb_new - vb)).sum(0) / dt)
+    return torch.cat(pieces, 0), torch.stack(forces, 0)
 
 
 def _check_points(points: Tensor) -> None:

@@ -4,8 +4,8 @@ All functions are batched over a leading particle dimension P, work in float32 o
 differentiable by autograd (E and nu may be python floats or 0-dim tensors that require grad).
 
 The polar decomposition uses the scaled Newton iteration of Higham (1986), ``X <- (g X + X^-T / g) / 2`` with the
-analytic 3x3 inverse (cofactors); on CPU it is several times faster than ``torch.linalg.svd`` and, unlike the SVD, its
-autograd derivative is well defined at repeated singular values (e.g. the rest state F = I).
+analytic 3x3 inverse (cofactors): no SVD, and unlike the SVD its autograd derivative is well defined at repeated
+singular values (e.g. the rest state F = I).
 """
 
 from __future__ import annotations

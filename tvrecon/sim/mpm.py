@@ -1,9 +1,12 @@
 """MLS-MPM solver (Hu et al. 2018; paper eq. 5-11, the loop body of Algorithm 1) on a sparse local grid, in torch.
 
-Conventions (the simulator contract of DESIGN.md): domain ``[0, 1)^3``, ``dx = 1 / n_grid``, node ``I`` at ``I dx``;
-quadratic B-spline weights with ``base = floor(x / dx - 0.5)``, ``fx = x / dx - base``, 27 nodes per particle.
+Conventions (the simulator contract, ``docs/simulator-contract.md``): domain ``[0, 1)^3``, ``dx = 1 / n_grid``, node
+``I`` at ``I dx``; quadratic B-spline weights with ``base = floor(x / dx - 0.5)``, ``fx = x / dx - base``, 27 nodes
+per particle. One step is :meth:`MLSMPM._p2g` (eq. 5-6), :meth:`MLSMPM._grid_update` (eq. 7, damping, colliders) and
+:meth:`MLSMPM._g2p` (eq. 8-11). :class:`tvrecon.sim.reference.ReferenceMPM` is the same step written naively (dense
+grid, a loop over the 27 offsets, SVD): read it first; the tests hold the two equal to round-off.
 
-Speed: the grid is a block per scene aligned to the global lattice and covering only the bounding box of that scene's
+Layout: the grid is a block per scene aligned to the global lattice and covering only the bounding box of that scene's
 particles (cost follows the particles, not ``n_grid^3``); mass and momentum are scattered in one fused ``(N, 4)``
 ``index_add_``; the 27-node sums are small matrix products against the precomputed offsets; the polar decomposition
 is an analytic Newton iteration (``materials.polar_decomposition``). With no input requiring grad the step runs under
@@ -15,11 +18,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
-from .colliders import Collider
+from .colliders import Collider, collide_grid
 from .materials import fixed_corotated_kirchhoff, lame_parameters, p_wave_speed, polar_decomposition
 
 __all__ = ["MPMConfig", "ParticleState", "MLSMPM", "cfl_dt"]
@@ -160,6 +164,18 @@ def _shift(t: Tensor, s: int) -> Tensor:
     return torch.nn.functional.pad(t, (s, -s))
 
 
+class _Stencil(NamedTuple):
+    """Particle -> node stencil of one step, shared by P2G and G2P (P particles, B scenes, N block-grid nodes)."""
+
+    fx: Tensor  # (P, 3) particle position in cells relative to its base node, in [0.5, 1.5)
+    w: Tensor  # (27, P) quadratic B-spline weight of each stencil node, offsets (i, j, k) with i slowest
+    lo: Tensor  # (B, 3) int64 global node index of each scene's block origin
+    lin: Tensor  # (P,) int64 linear block-grid index of each particle's base node
+    D: list[int]  # block dims per scene (nodes per axis)
+    n_nodes: int  # N = B * D[0] * D[1] * D[2]
+    chunk: int  # particles per chunk of the stencil passes (>= P: all at once)
+
+
 def _offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
     """(27, 3) node offsets (i, j, k) in {0,1,2}^3, i slowest."""
     r = torch.arange(3, device=device)
@@ -168,7 +184,7 @@ def _offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
 
 
 class MLSMPM:
-    """MLS-MPM stepper implementing the simulator contract (paper eq. 5-11).
+    """MLS-MPM stepper implementing the simulator contract (paper eq. 5-11; naive twin: ``tvrecon.sim.reference``).
 
     Args:
         cfg: solver config.
@@ -290,14 +306,17 @@ class MLSMPM:
         alpha: Tensor | None,
         B: int,
     ) -> ParticleState:
-        x, v, C, F = state.x, state.v, state.C, state.F
-        P = x.shape[0]
-        dtype, device = x.dtype, x.device
-        dx, inv_dx, dt = self.dx, self.inv_dx, self.dt
-        o, o_aug_t, o_int = self._constants(dtype, device)
+        """One step in the paper's order: P2G (eq. 5-6), grid velocity and colliders (eq. 7), G2P (eq. 8-11)."""
+        st = self._stencil(state, B)
+        grid = self._p2g(state, st)
+        gv = self._grid_update(grid, colliders, st)
+        return self._g2p(state, st, gv, hand_velocity, alpha)
 
-        # ---- particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights
-        Xg = x * inv_dx
+    def _stencil(self, state: ParticleState, B: int) -> _Stencil:
+        """Particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights."""
+        x = state.x
+        P = x.shape[0]
+        Xg = x * self.inv_dx
         base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
         lo, lin, D = self._layout(base_f, state.batch, B)
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
@@ -305,9 +324,18 @@ class MLSMPM:
         fxt = fx.T.contiguous()  # (3, P)
         wa = torch.stack([0.5 * (1.5 - fxt) ** 2, 0.75 - (fxt - 1.0) ** 2, 0.5 * (fxt - 0.5) ** 2], 1)  # (axis, k, P)
         w = (wa[0][:, None, None] * wa[1][None, :, None] * wa[2][None, None, :]).reshape(27, P)  # o = (i, j, k)
-        n_nodes = B * D[0] * D[1] * D[2]
+        return _Stencil(fx, w, lo, lin, D, B * D[0] * D[1] * D[2], self._chunk(P))
 
-        # ---- stress P F^T (paper eq. 4, eq:PK; materials.py) and the affine momentum matrix
+    def _p2g(self, state: ParticleState, st: _Stencil) -> Tensor:
+        """Scatter mass and momentum to the grid (paper eq. 5 and 6): the (4, N) block grid of [m_i, (m v)_i]."""
+        x, v, C, F = state.x, state.v, state.C, state.F
+        P = x.shape[0]
+        dtype, device = x.dtype, x.device
+        dx, inv_dx, dt = self.dx, self.inv_dx, self.dt
+        fx, w, lin, D, n_nodes, chunk = st.fx, st.w, st.lin, st.D, st.n_nodes, st.chunk
+        _, o_aug_t, _ = self._constants(dtype, device)
+
+        # stress P F^T (paper eq. 4, eq:PK; materials.py) and the affine momentum matrix
         # A = m C - gamma P F^T, gamma = 4 dt V0 / dx^2: the particle term of paper eq. 6 (eq:momentum)
         R = polar_decomposition(F)
         tau = fixed_corotated_kirchhoff(F, self.mu, self.lam, R)  # (P, 3, 3) = P(F) F^T
@@ -323,11 +351,10 @@ class MLSMPM:
             0,
         )  # (4, 4, P): M[c, j] with [1, o] weights j
 
-        # ---- P2G, paper eq. 5 (eq:mass) and eq. 6 (eq:momentum): ONE scatter of each particle's whole 4 x 27
-        # stencil onto its base node (P columns of 108), then the 27 stencil offsets are summed by shifting along the
-        # node axis, k then j then i (9 shifts).
+        # paper eq. 5 (eq:mass) and eq. 6 (eq:momentum): ONE scatter of each particle's whole 4 x 27 stencil onto its
+        # base node (P columns of 108), then the 27 stencil offsets are summed by shifting along the node axis, k then
+        # j then i (9 shifts).
         S0, S1 = D[1] * D[2], D[2]
-        chunk = self._chunk(P)
         if chunk >= P:
             contrib = torch.matmul(o_aug_t, MT) * w  # (4, 27, P): (m, m v) per stencil node
             G = torch.zeros(108, n_nodes, dtype=dtype, device=device).index_add(1, lin, contrib.reshape(108, P))
@@ -340,25 +367,49 @@ class MLSMPM:
         Gt = G.view(4, 3, 3, 3, n_nodes)  # (c, i, j, k, node)
         T = Gt[:, :, :, 0] + _shift(Gt[:, :, :, 1], 1) + _shift(Gt[:, :, :, 2], 2)  # (4, 3, 3, N)
         U = T[:, :, 0] + _shift(T[:, :, 1], S1) + _shift(T[:, :, 2], 2 * S1)  # (4, 3, N)
-        grid = U[:, 0] + _shift(U[:, 1], S0) + _shift(U[:, 2], 2 * S0)  # (4, N): mass, momentum
+        return U[:, 0] + _shift(U[:, 1], S0) + _shift(U[:, 2], 2 * S0)  # (4, N): mass, momentum
+
+    def _grid_update(self, grid: Tensor, colliders: list[Collider | None], st: _Stencil) -> Tensor:
+        """Grid velocity (paper eq. 7), damping and colliders; sets ``last_force``. Returns the (N, 3) velocities.
+
+        Raises FloatingPointError when a node would move more than one cell per step (or is NaN)."""
+        dx, dt = self.dx, self.dt
         gm = grid[0]
         has_mass = gm > 0
         # paper eq. 7 (eq:grid_velocity), zero where m = 0
         gv = (grid[1:] / torch.where(has_mass, gm, torch.ones_like(gm))).T  # (N, 3)
 
-        # ---- grid operations: damping, colliders (momentum removed -> force)
+        # grid operations: damping, colliders (momentum removed -> force)
         if self.cfg.damping > 0:
             gv = gv * math.exp(-self.cfg.damping * dt)
-        gv, force = self._apply_colliders(gv, gm, colliders, lo, D, B, dtype, device)
+        gv, force = collide_grid(gv, gm, colliders, st.lo, st.D, self.dx, dt, self.cfg.friction)
         self.last_force = force
-        vmax = float(gv.detach().abs().amax()) if n_nodes else 0.0
+        vmax = float(gv.detach().abs().amax()) if st.n_nodes else 0.0
         if not vmax * dt <= dx:  # also catches NaN
             raise FloatingPointError(
                 f"MPM state exploded (grid speed {vmax:.3g} moves {vmax * dt / dx:.3g} cells per step, NaN or > 1): "
                 f"{_FIX_HINT}"
             )
+        return gv
 
-        # ---- G2P (paper eq. 8-11): table H[node, c, o] = v_c(node + offset_o) from 9 shifts; a row gather per particle
+    def _g2p(
+        self,
+        state: ParticleState,
+        st: _Stencil,
+        gv: Tensor,
+        hand_velocity: Tensor | None,
+        alpha: Tensor | None,
+    ) -> ParticleState:
+        """Gather the grid velocities back to the particles and advance them (paper eq. 8-11)."""
+        x, F = state.x, state.F
+        P = x.shape[0]
+        dtype, device = x.dtype, x.device
+        inv_dx, dt = self.inv_dx, self.dt
+        fx, w, lin, D, n_nodes, chunk = st.fx, st.w, st.lin, st.D, st.n_nodes, st.chunk
+        _, o_aug_t, _ = self._constants(dtype, device)
+        S0, S1 = D[1] * D[2], D[2]
+
+        # table H[node, c, o] = v_c(node + offset_o) from 9 shifts; a row gather per particle
         gvc = gv.T  # (3, N)
         K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
         K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
@@ -391,57 +442,3 @@ class MLSMPM:
         if torch.is_grad_enabled() or self.chunk_size <= 0:
             return P
         return self.chunk_size
-
-    def _apply_colliders(
-        self,
-        gv: Tensor,
-        gm: Tensor,
-        colliders: list[Collider | None],
-        lo: Tensor,
-        D: list[int],
-        B: int,
-        dtype: torch.dtype,
-        device: torch.device,
-    ) -> tuple[Tensor, Tensor]:
-        """Remove the velocity component into each collider on nodes with sdf < 0 (Coulomb friction optional).
-
-        Returns the new (N, 3) grid velocity and the (B, 3) force on the particles (sum m dv / dt per scene)."""
-        force = torch.zeros(B, 3, dtype=dtype, device=device)
-        if all(c is None for c in colliders):
-            return gv, force
-        nb = D[0] * D[1] * D[2]
-        a0 = torch.arange(D[0], device=device)
-        a1 = torch.arange(D[1], device=device)
-        a2 = torch.arange(D[2], device=device)
-        local = torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(nb, 3)  # (nb, 3)
-        lo_list = lo.tolist()
-        pieces = []
-        forces = []
-        mu_f = self.cfg.friction
-        for b in range(B):
-            vb = gv[b * nb : (b + 1) * nb]
-            col = colliders[b]
-            if col is None:
-                pieces.append(vb)
-                forces.append(torch.zeros(3, dtype=dtype, device=device))
-                continue
-            mb = gm[b * nb : (b + 1) * nb]
-            node = local + torch.tensor(lo_list[b], device=device)  # (nb, 3) global node indices
-            if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
-                sdf, n = col.at_nodes(node)
-                sdf, n = sdf.to(dtype), n.to(dtype)
-            else:
-                pos = node.to(dtype) * self.dx  # (nb, 3) node positions
-                sdf = col.sdf(pos)
-                n = col.normal(pos)
-            vn = (vb * n).sum(1, keepdim=True)  # (nb, 1)
-            hit = (sdf < 0)[:, None] & (vn < 0) & (mb > 0)[:, None]
-            vt = vb - vn * n
-            if mu_f > 0:
-                vt_norm = vt.norm(dim=1, keepdim=True)
-                safe = torch.where(vt_norm > 0, vt_norm, torch.ones_like(vt_norm))
-                vt = vt * torch.clamp(1.0 + mu_f * vn / safe, min=0.0)
-            vb_new = torch.where(hit, vt, vb)
-            pieces.append(vb_new)
-            forces.append((mb[:, None] * (vb_new - vb)).sum(0) / self.dt)
-        return torch.cat(pieces, 0), torch.stack(forces, 0)

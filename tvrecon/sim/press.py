@@ -212,7 +212,7 @@ def _touch_z(dx: float) -> float:
 
     The grid contact is decided per node by the sign of the sdf. With the touch plane on a node plane (z = 0.5), the
     nodes along a flat or cylindrical contact line sit at sdf ~ 0, and 0.01-cell geometry (a facet ridge, a tiny
-    tilt) flips their sign: the pad was pushed half a cell early on one stretch of the line only, a bright streak
+    tilt) flips their sign: the pad would be pushed half a cell early on one stretch of the line only, a bright streak
     (e.g. a lathed can pressed on a facet edge). Half-way between node planes they sit at +-0.5 cells.
     """
     return 0.5 + 0.5 * dx
