@@ -175,7 +175,8 @@ class MLSMPM:
         device: device of internal constants (states may live on it).
 
     After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
-    (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used.
+    (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;
+    :meth:`last_particle_force` shares that force out over the particles.
     """
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu") -> None:
@@ -197,6 +198,9 @@ class MLSMPM:
                 raise ValueError(f"dt must be > 0, got {cfg.dt}")
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
+        # the last step's transfer (lin (P,), w (27, P), node mass (N,), node collider force (N, 3), strides):
+        # references to tensors the step computed anyway, for last_particle_force
+        self._last_transfer: tuple[Tensor, Tensor, Tensor, Tensor, tuple[int, int]] | None = None
         self.chunk_size = 4096  # particles per cache-sized block of the stencil passes (no-grad path); 0 = off
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
 
@@ -349,8 +353,9 @@ class MLSMPM:
         # ---- grid operations: damping, colliders (momentum removed -> force)
         if self.cfg.damping > 0:
             gv = gv * math.exp(-self.cfg.damping * dt)
-        gv, force = self._apply_colliders(gv, gm, colliders, lo, D, B, dtype, device)
+        gv, force, node_force = self._apply_colliders(gv, gm, colliders, lo, D, B, dtype, device)
         self.last_force = force
+        self._last_transfer = (lin, w.detach(), gm.detach(), node_force.detach(), (S0, S1))
         vmax = float(gv.detach().abs().amax()) if n_nodes else 0.0
         if not vmax * dt <= dx:  # also catches NaN
             raise FloatingPointError(
@@ -386,6 +391,29 @@ class MLSMPM:
         F_new = F + dt * torch.matmul(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
 
+    def last_particle_force(self, mass: Tensor) -> Tensor:
+        """The last step's collider force shared out over the particles that moved its nodes.
+
+        Node i's force f_i (momentum the collider removed, / dt) goes to particle p in proportion to p's share of the
+        node's mass, ``f_p = m_p sum_i w_ip f_i / m_i`` (the same B-spline weights as the transfer, so
+        ``sum_p w_ip m_p = m_i`` and the particle forces of a scene sum to its ``last_force``).
+
+        Args:
+            mass: (P,) particle masses of the state passed to the last ``step``.
+        Returns:
+            (P, 3) force on each particle (domain axes, simulation units), detached.
+        """
+        if self._last_transfer is None:
+            raise RuntimeError("last_particle_force needs a step first")
+        lin, w, gm, node_force, (S0, S1) = self._last_transfer
+        if mass.shape != lin.shape:
+            raise ValueError(f"mass must be (P,) = {tuple(lin.shape)} like the last step's particles, got {mass.shape}")
+        _, _, o_int = self._constants(w.dtype, w.device)
+        idx = lin[None, :] + (o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2])[:, None]  # (27, P) stencil nodes
+        per_mass = node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]  # (N, 3)
+        acc = (w[:, :, None] * per_mass[idx]).sum(0)  # (P, 3)
+        return mass.detach().to(acc)[:, None] * acc
+
     def _chunk(self, P: int) -> int:
         """Particles per chunk of the stencil passes: all at once under autograd, cache-sized blocks otherwise."""
         if torch.is_grad_enabled() or self.chunk_size <= 0:
@@ -405,10 +433,11 @@ class MLSMPM:
     ) -> tuple[Tensor, Tensor]:
         """Remove the velocity component into each collider on nodes with sdf < 0 (Coulomb friction optional).
 
-        Returns the new (N, 3) grid velocity and the (B, 3) force on the particles (sum m dv / dt per scene)."""
+        Returns the new (N, 3) grid velocity, the (B, 3) force on the particles (sum m dv / dt per scene) and the
+        (N, 3) force of each node (m dv / dt, zero off the colliders)."""
         force = torch.zeros(B, 3, dtype=dtype, device=device)
         if all(c is None for c in colliders):
-            return gv, force
+            return gv, force, torch.zeros_like(gv)
         nb = D[0] * D[1] * D[2]
         a0 = torch.arange(D[0], device=device)
         a1 = torch.arange(D[1], device=device)
@@ -417,12 +446,14 @@ class MLSMPM:
         lo_list = lo.tolist()
         pieces = []
         forces = []
+        node_forces = []
         mu_f = self.cfg.friction
         for b in range(B):
             vb = gv[b * nb : (b + 1) * nb]
             col = colliders[b]
             if col is None:
                 pieces.append(vb)
+                node_forces.append(torch.zeros_like(vb))
                 forces.append(torch.zeros(3, dtype=dtype, device=device))
                 continue
             mb = gm[b * nb : (b + 1) * nb]
@@ -443,5 +474,7 @@ class MLSMPM:
                 vt = vt * torch.clamp(1.0 + mu_f * vn / safe, min=0.0)
             vb_new = torch.where(hit, vt, vb)
             pieces.append(vb_new)
-            forces.append((mb[:, None] * (vb_new - vb)).sum(0) / self.dt)
-        return torch.cat(pieces, 0), torch.stack(forces, 0)
+            dp = mb[:, None] * (vb_new - vb)  # momentum removed by the collider, per node
+            node_forces.append(dp / self.dt)
+            forces.append(dp.sum(0) / self.dt)
+        return torch.cat(pieces, 0), torch.stack(forces, 0), torch.cat(node_forces, 0)
