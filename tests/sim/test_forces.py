@@ -26,7 +26,9 @@ def readings():
     sim = EIPSimulator(
         SensorConfig(resolution=(12, 12), layers=3, spacing=1.0), PressConfig(n_grid=32, speed_fraction=0.25)
     )
-    return sim.press_batch([SPHERE, SPHERE], [[0.0, 0.0, 0.1], [0.1, 0.0, 0.0]], [[0, 0, -1.0], [-1.0, 0, 0]], depth=1.0)
+    return sim.press_batch(
+        [SPHERE, SPHERE], [[0.0, 0.0, 0.1], [0.1, 0.0, 0.0]], [[0, 0, -1.0], [-1.0, 0, 0]], depth=1.0
+    )
 
 
 def test_field_sums_to_the_recorded_force(readings) -> None:
