@@ -115,3 +115,18 @@ def test_cli_unreadable_and_zero_size_meshes_are_clear_errors(tmp_path: Path, ca
     path.write_text(tiny.export(file_type="obj"))  # 8 decimals: every vertex is written as 0
     assert main([*base, "--shape", str(path)]) == 2
     assert "has zero size" in capsys.readouterr().err
+
+
+def test_cli_sensor_outputs_write_pngs(tmp_path: Path, capsys) -> None:
+    """Issue 15 item 3: `--outputs force markers rgb` writes force.png, markers.png, rgb.png and outputs.png."""
+    out = tmp_path / "run"
+    args = ["press", "--shape", "sphere", "--direction", "0", "0", "-1", "--out", str(out), "--resolution", "8"]
+    args += ["--layers", "3", "--n-grid", "32", "--depth", "0.5", "--frames", "1", "--ply", "0"]
+    assert main(args + ["--outputs", "force", "markers", "rgb", "--marker-spacing", "3"]) == 0
+    for name in ("force.png", "markers.png", "rgb.png", "outputs.png"):
+        assert (out / name).is_file(), name
+    data = np.load(out / "reading.npz")
+    assert data["force_field"].shape == (8, 8, 3)
+    np.testing.assert_allclose(data["force_field"].sum((0, 1)), data["frame"].T @ data["force"], rtol=1e-3, atol=1e-9)
+    assert main(args + ["--outputs", "markers", "--marker-radius", "0"]) == 2
+    assert "--marker-radius" in capsys.readouterr().err

@@ -8,6 +8,9 @@ Public names::
     PressConfig, TactileReading, EIPSimulator            # the press protocol, Algorithm 1 (press.py)
     terminal_chamfer                                     # its terminal check, paper eq. 12 (press.py)
     ContactPatch, contact_patch, reading_patch           # a touch mapped back to 3D world points (contact.py)
+
+Sensor outputs beyond displacement live in their own modules: ``forces`` (per-taxel force field, also on every
+reading as ``force_field``), ``markers`` (marker-displacement images), ``photometric`` (GelSight-style RGB).
 """
 
 from tvrecon.sim.colliders import MeshCollider, PlaneCollider, SphereCollider

@@ -4,7 +4,9 @@
 
 Writes ``tactile.png`` (normal displacement + shear arrows), ``reading.npz`` (every field of the reading),
 ``pad_step*.ply`` (pad particles, world coordinates, a few steps), ``deformation.png`` (the press over time) and,
-with ``--surface``, ``pad_surface.ply`` (marching-cubes mesh of the deformed pad).
+with ``--surface``, ``pad_surface.ply`` (marching-cubes mesh of the deformed pad). ``--outputs force markers rgb``
+adds ``force.png`` (per-taxel normal/shear force), ``markers.png`` (marker grid as a camera behind the pad sees it),
+``rgb.png`` (GelSight-style photometric image) and ``outputs.png`` (all of them beside the displacement).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, 
 from tvrecon.sim.sensor import SensorConfig
 
 BUILTIN_SHAPES = ("torus", "gear", "sphere", "cube")
+SENSOR_OUTPUTS = ("force", "markers", "rgb")
 
 
 def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
@@ -121,6 +124,11 @@ def check_outputs(args: argparse.Namespace) -> Path:
         raise ValueError(f"--frames must be >= 1 (frames drawn in deformation.png), got {args.frames}")
     if args.ply < 0:
         raise ValueError(f"--ply must be >= 0 (pad .ply files of the last frames; 0 writes none), got {args.ply}")
+    if not (args.marker_spacing > 0 and args.marker_radius > 0 and args.height_gain > 0):
+        raise ValueError(
+            f"--marker-spacing, --marker-radius and --height-gain must be > 0, got {args.marker_spacing}, "
+            f"{args.marker_radius} and {args.height_gain}"
+        )
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file: give a folder (it will hold tactile.png, reading.npz, ...)")
@@ -193,6 +201,8 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
             spacing_world = sensor.spacing * press.domain_size / press.n_grid
             surf = pad_surface(reading.particles[pick[-1]], spacing=spacing_world)
             files["surface"] = atomic_write_bytes(out / "pad_surface.ply", surf.export(file_type="ply"))
+    if args.outputs:
+        files.update(write_sensor_outputs(reading, sensor, args, out))
     print(
         f"contact={reading.contact} steps={reading.steps} depth={reading.depth:.3f} cells "
         f"max normal={float(reading.image[2].max()):.3f} cells chamfer={reading.chamfer:.4g} "
@@ -200,6 +210,44 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     )
     for name, path in files.items():
         print(f"wrote {name}: {path}")
+    return files
+
+
+def write_sensor_outputs(
+    reading: TactileReading, sensor: SensorConfig, args: argparse.Namespace, out: Path
+) -> dict[str, Path]:
+    """``force.png``, ``markers.png``, ``rgb.png`` (those in ``args.outputs``) and ``outputs.png``; {name: path}."""
+    from tvrecon.sim.markers import marker_displacements, marker_grid, render_markers
+    from tvrecon.sim.photometric import render_rgb
+    from tvrecon.sim.render_outputs import (
+        auto_arrow_gain,
+        save_force_png,
+        save_markers_png,
+        save_outputs_png,
+        save_rgb_png,
+    )
+
+    files: dict[str, Path] = {}
+    image = reading.image.detach().cpu()
+    field = markers = rgb = None
+    gain = 1.0
+    if "force" in args.outputs and reading.force_field is not None:
+        field = reading.force_field
+        files["force"] = save_force_png(field, out / "force.png")
+    if "markers" in args.outputs:
+        rest = marker_grid(sensor.resolution, spacing=args.marker_spacing)
+        disp = marker_displacements(image, rest, taxel_spacing=sensor.spacing)
+        ppt = 4
+        dots = render_markers(rest + disp, sensor.resolution, radius=args.marker_radius, pixels_per_taxel=ppt)
+        markers = (dots, rest, disp, ppt)
+        gain = auto_arrow_gain(disp.numpy(), args.marker_spacing)
+        files["markers"] = save_markers_png(dots, rest, disp, out / "markers.png", ppt, arrow_gain=gain)
+    if "rgb" in args.outputs:
+        rgb = render_rgb(image, taxel_spacing=sensor.spacing, height_gain=args.height_gain)
+        files["rgb"] = save_rgb_png(rgb, out / "rgb.png")
+    files["outputs"] = save_outputs_png(
+        out / "outputs.png", image, field=field, markers=markers, arrow_gain=gain, rgb=rgb
+    )
     return files
 
 
@@ -224,6 +272,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=5, help="frames in deformation.png")
     p.add_argument("--ply", type=int, default=3, help="pad .ply files to write (last frames)")
     p.add_argument("--surface", action="store_true", help="also write a marching-cubes mesh of the pad")
+    p.add_argument(
+        "--outputs", nargs="+", choices=SENSOR_OUTPUTS, default=[], help="sensor outputs to draw beyond displacement"
+    )
+    p.add_argument("--marker-spacing", type=float, default=4.0, help="marker grid spacing (taxels)")
+    p.add_argument("--marker-radius", type=float, default=1.0, help="marker dot radius (taxels)")
+    p.add_argument("--height-gain", type=float, default=3.0, help="height exaggeration of the RGB image")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
     return parser
 

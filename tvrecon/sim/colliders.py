@@ -40,7 +40,7 @@ def collide_grid(
     dx: float,
     dt: float,
     friction: float = 0.0,
-) -> tuple[Tensor, Tensor]:
+) -> tuple[Tensor, Tensor, Tensor]:
     """Remove the velocity component into each collider on grid nodes with sdf < 0 (Coulomb friction optional).
 
     The collider step of the MLS-MPM grid update (``MLSMPM._grid_update``), on the solver's block grid: B scenes of
@@ -53,12 +53,13 @@ def collide_grid(
         lo: (B, 3) int64 block origins; D: block dims.
         dx, dt: cell size and time step; friction: Coulomb coefficient (0 = frictionless slip).
 
-    Returns the new (N, 3) grid velocity and the (B, 3) force on the particles (sum m dv / dt per scene)."""
+    Returns the new (N, 3) grid velocity, the (B, 3) force on the particles (sum m dv / dt per scene) and the (N, 3)
+    force of each node (m dv / dt, zero off the colliders)."""
     dtype, device = gv.dtype, gv.device
     B = len(colliders)
     force = torch.zeros(B, 3, dtype=dtype, device=device)
     if all(c is None for c in colliders):
-        return gv, force
+        return gv, force, torch.zeros_like(gv)
     nb = D[0] * D[1] * D[2]
     a0 = torch.arange(D[0], device=device)
     a1 = torch.arange(D[1], device=device)
@@ -67,12 +68,14 @@ def collide_grid(
     lo_list = lo.tolist()
     pieces = []
     forces = []
+    node_forces = []
     mu_f = friction
     for b in range(B):
         vb = gv[b * nb : (b + 1) * nb]
         col = colliders[b]
         if col is None:
             pieces.append(vb)
+            node_forces.append(torch.zeros_like(vb))
             forces.append(torch.zeros(3, dtype=dtype, device=device))
             continue
         mb = gm[b * nb : (b + 1) * nb]
@@ -93,8 +96,10 @@ def collide_grid(
             vt = vt * torch.clamp(1.0 + mu_f * vn / safe, min=0.0)
         vb_new = torch.where(hit, vt, vb)
         pieces.append(vb_new)
-        forces.append((mb[:, None] * (vb_new - vb)).sum(0) / dt)
-    return torch.cat(pieces, 0), torch.stack(forces, 0)
+        dp = mb[:, None] * (vb_new - vb)  # momentum removed by the collider, per node
+        node_forces.append(dp / dt)
+        forces.append(dp.sum(0) / dt)
+    return torch.cat(pieces, 0), torch.stack(forces, 0), torch.cat(node_forces, 0)
 
 
 def _check_points(points: Tensor) -> None:

@@ -191,7 +191,8 @@ class MLSMPM:
         device: device of internal constants (states may live on it).
 
     After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
-    (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used.
+    (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;
+    :meth:`last_particle_force` shares that force out over the particles.
     """
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu") -> None:
@@ -213,6 +214,9 @@ class MLSMPM:
                 raise ValueError(f"dt must be > 0, got {cfg.dt}")
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
+        # the last step's transfer (lin (P,), w (27, P), node mass (N,), node collider force (N, 3), strides):
+        # references to tensors the step computed anyway, for last_particle_force
+        self._last_transfer: tuple[Tensor, Tensor, Tensor, Tensor, tuple[int, int]] | None = None
         self.chunk_size = 4096  # particles per cache-sized block of the stencil passes (no-grad path); 0 = off
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
 
@@ -382,8 +386,10 @@ class MLSMPM:
         # grid operations: damping, colliders (momentum removed -> force)
         if self.cfg.damping > 0:
             gv = gv * math.exp(-self.cfg.damping * dt)
-        gv, force = collide_grid(gv, gm, colliders, st.lo, st.D, self.dx, dt, self.cfg.friction)
+        gv, force, node_force = collide_grid(gv, gm, colliders, st.lo, st.D, self.dx, dt, self.cfg.friction)
         self.last_force = force
+        S0, S1 = st.D[1] * st.D[2], st.D[2]
+        self._last_transfer = (st.lin, st.w.detach(), gm.detach(), node_force.detach(), (S0, S1))
         vmax = float(gv.detach().abs().amax()) if st.n_nodes else 0.0
         if not vmax * dt <= dx:  # also catches NaN
             raise FloatingPointError(
@@ -436,6 +442,29 @@ class MLSMPM:
         x_new = x + dt * v_new  # paper eq. 10 (eq:particle_x)
         F_new = F + dt * torch.matmul(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
+
+    def last_particle_force(self, mass: Tensor) -> Tensor:
+        """The last step's collider force shared out over the particles that moved its nodes.
+
+        Node i's force f_i (momentum the collider removed, / dt) goes to particle p in proportion to p's share of the
+        node's mass, ``f_p = m_p sum_i w_ip f_i / m_i`` (the same B-spline weights as the transfer, so
+        ``sum_p w_ip m_p = m_i`` and the particle forces of a scene sum to its ``last_force``).
+
+        Args:
+            mass: (P,) particle masses of the state passed to the last ``step``.
+        Returns:
+            (P, 3) force on each particle (domain axes, simulation units), detached.
+        """
+        if self._last_transfer is None:
+            raise RuntimeError("last_particle_force needs a step first")
+        lin, w, gm, node_force, (S0, S1) = self._last_transfer
+        if mass.shape != lin.shape:
+            raise ValueError(f"mass must be (P,) = {tuple(lin.shape)} like the last step's particles, got {mass.shape}")
+        _, _, o_int = self._constants(w.dtype, w.device)
+        idx = lin[None, :] + (o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2])[:, None]  # (27, P) stencil nodes
+        per_mass = node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]  # (N, 3)
+        acc = (w[:, :, None] * per_mass[idx]).sum(0)  # (P, 3)
+        return mass.detach().to(acc)[:, None] * acc
 
     def _chunk(self, P: int) -> int:
         """Particles per chunk of the stencil passes: all at once under autograd, cache-sized blocks otherwise."""

@@ -34,6 +34,7 @@ from tqdm.auto import tqdm
 from tvrecon.config_utils import check_known_keys, field_names
 from tvrecon.geometry import check_mesh
 from tvrecon.sim import colliders as _colliders
+from tvrecon.sim.forces import column_force_field
 from tvrecon.sim.materials import p_wave_speed
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
 from tvrecon.sim.sensor import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice, sensor_frame
@@ -125,6 +126,9 @@ class TactileReading:
         depth: indentation past first contact (hand travel minus gap), in cells, >= 0.
         chamfer: :func:`terminal_chamfer` of the contact layer at the reading (squared cells per particle).
         force: (3,) float32 contact force on the pad in world axes (simulation units), at the last press step.
+        force_field: (H, W, 3) float32 the same force per taxel in the sensor frame (x shear, y shear, z normal;
+            z > 0 = pushing into the pad), summing to ``force`` (``R^T force``) to float round-off; see
+            :mod:`tvrecon.sim.forces`.
         contact: whether the object ever pushed on the pad.
         frame: (3, 3) float32 sensor frame R (columns e_x, e_y, e_z in world), world = R @ local.
         origin: (3,) float32 world point at the touch point (domain (0.5, 0.5, 0.5 + dx / 2)).
@@ -148,6 +152,7 @@ class TactileReading:
     frames: Tensor | None = None
     frame_steps: list[int] = field(default_factory=list)
     particles: Tensor | None = None
+    force_field: Tensor | None = None
 
 
 def terminal_chamfer(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | None = None) -> float:
@@ -445,6 +450,7 @@ class EIPSimulator:
             if not tc.reachable:
                 tc.reading = self._reading(tc, zero_img, s, p, chamfer=0.0, force=torch.zeros(3), x_pad=None)
                 tc.reading.contact = False
+                tc.reading.force_field = torch.zeros(H, W, 3)
         if not active:
             return [tc.reading for tc in touches]  # type: ignore[misc]
 
@@ -494,6 +500,7 @@ class EIPSimulator:
                     f"or raise damping; current dt={dt:.3g}, speed={_scalar(speed):.3g}, E={_scalar(s.E):.3g}"
                 )
             force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
+            particle_force = None  # (B, P, 3), computed on the first stop of this step
             done_now = []
             for b, t in enumerate(active):
                 tc = touches[t]
@@ -512,6 +519,11 @@ class EIPSimulator:
                         ch = terminal_chamfer(xb[b, :HW] / dx, x0_contact, (H, W, float(s.spacing)))
                         f_world = tc.R @ force[b].cpu()
                         tc.reading = self._reading(tc, img, s, p, chamfer=ch, force=f_world, x_pad=xb[b])
+                        if particle_force is None:
+                            particle_force = solver.last_particle_force(state.mass).view(B, P, 3)
+                        tc.reading.force_field = (
+                            column_force_field(particle_force[b], (H, W), int(s.layers)).float().cpu()
+                        )
                         if p.record_every and tc.steps % int(p.record_every) != 0:
                             self._record(tc, xb[b], x0_contact, dx, s, p)
                         if tc.release_left > 0:
