@@ -4,6 +4,8 @@
 composes it (``data=<preset>`` in ``configs/train.yaml``) and as ``python -m tvrecon.data.generate`` composes it
 (:func:`tvrecon.data.presets.compose_preset`), plus the ``data`` node of every experiment. It was written before the
 presets were split into config groups (issue 16 item 6), so the composed presets are proven to give the same values.
+The one intended difference is ``touch._target_``, added when touch policies became pluggable (issue 16 item 5): it
+names the default policy, whose cache key it does not enter.
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update
@@ -74,12 +76,16 @@ def snapshot() -> dict[str, Any]:
     }
 
 
-def cache_keys() -> dict[str, dict[str, str]]:
-    """Cache key of item 0 of every split of every preset (nothing is generated)."""
+def cache_keys(convert: str = "all") -> dict[str, dict[str, str]]:
+    """Cache key of item 0 of every split of every preset (nothing is generated).
+
+    ``convert``: Hydra's ``_convert_``; the generate CLI instantiates with ``"all"``, train.py with the default
+    ``"none"`` (the touch policy then gets OmegaConf lists and dicts).
+    """
     out = {}
     for name in PRESETS:
         GlobalHydra.instance().clear()
-        dm = instantiate(compose_preset(name, ["cache_dir=null"]), _convert_="all")
+        dm = instantiate(compose_preset(name, ["cache_dir=null"]), _convert_=convert)
         out[name] = {split: cache_key(dm.make_dataset(split).spec(0)) for split in dm.available_splits()}
     return out
 
@@ -94,17 +100,35 @@ def test_preset_list_is_pinned():
     assert preset_names() == PRESETS
 
 
+#: Keys added to every preset on purpose since the fixture was written, with their value.
+ADDED = {("touch", "_target_"): "tvrecon.data.touches.ConeTouchPolicy"}
+
+
 def test_presets_resolve_to_pinned_values(project_root):
     expected = json.loads(PRESETS_FIXTURE.read_text())
     actual = snapshot()
     assert sorted(actual["experiment"]) == sorted(expected["experiment"])
     for how in ("train", "generate", "experiment"):
         for name, cfg in expected[how].items():
-            assert actual[how][name] == cfg, f"{how} {name}: the composed data config changed"
+            got = actual[how][name]
+            for (block, key), value in ADDED.items():
+                assert got[block].pop(key) == value, f"{how} {name}: {block}.{key}"
+            assert got == cfg, f"{how} {name}: the composed data config changed"
 
 
-def test_cache_keys_are_pinned(project_root):
-    assert cache_keys() == json.loads(KEYS_FIXTURE.read_text())
+@pytest.mark.parametrize("convert", ["all", "none"])
+def test_cache_keys_are_pinned(project_root, convert: str):
+    assert cache_keys(convert) == json.loads(KEYS_FIXTURE.read_text())
+
+
+def test_default_policy_key_ignores_how_it_is_written(project_root):
+    """``touch.cone_deg=15`` (an int), the default policy with or without ``_target_``, or no touch block at all:
+    one policy, one key."""
+    expected = json.loads(KEYS_FIXTURE.read_text())["tiny"]["train"]
+    for overrides in (["touch.cone_deg=15"], ["~touch._target_"], ["~touch"]):
+        GlobalHydra.instance().clear()
+        dm = instantiate(compose_preset("tiny", ["cache_dir=null", *overrides]))
+        assert cache_key(dm.make_dataset("train").spec(0)) == expected, overrides
 
 
 if __name__ == "__main__":  # regenerate the fixtures (only when a change of values or keys is intended)

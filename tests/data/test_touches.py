@@ -1,5 +1,7 @@
 """Touch policies: surface sampling, press-direction cones, visibility, batching into the simulator, resizing."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -8,7 +10,9 @@ import trimesh
 from tvrecon.data.render import sample_camera
 from tvrecon.data.touches import (
     ConeTouchPolicy,
+    Touches,
     cone_directions,
+    make_touch_policy,
     pad_footprint,
     pad_reachable,
     resize_tactile,
@@ -265,3 +269,41 @@ def test_visible_touches_land_on_the_rendered_object() -> None:
     assert view["mask"][uv[:, 1], uv[:, 0]].all()
     err = (view["depth"][uv[:, 1], uv[:, 0]] - z).abs()
     assert err.median() < 0.01 and (err < 0.03).float().mean() > 0.9
+
+
+def test_policy_sample_is_sample_touches_with_a_seeded_rng(torus: trimesh.Trimesh) -> None:
+    policy = ConeTouchPolicy(cone_deg=10.0)
+    a = sample_touches(torus, 7, seed=3, policy=policy)
+    b = policy.sample(torus, 7, np.random.default_rng(3))
+    assert isinstance(a, Touches) and a._fields == ("positions", "directions", "normals", "strengths")
+    assert all(torch.equal(x, y) for x, y in zip(a[:3], b[:3], strict=True)) and a.strengths == b.strengths
+
+
+@dataclasses.dataclass
+class _AlongNormal(ConeTouchPolicy):
+    """A policy other than the default: the default's points, pressed exactly along the inward normal."""
+
+    def sample(self, mesh, n, rng, camera=None, sim=None) -> Touches:
+        points, normals, _ = self._candidates(mesh, n, n, rng, camera, sim)
+        return self._touches(points[:n], normals[:n], -normals[:n], rng)
+
+
+def test_make_touch_policy_and_cache_spec(torus: trimesh.Trimesh) -> None:
+    default = make_touch_policy(None)
+    assert default == ConeTouchPolicy() and make_touch_policy(default) is default
+    # the default's cache spec is its fields only: the touch_policy entry of samples cached before policies existed
+    fields = {"cone_deg": 15.0, "strengths": default.strengths, "visible_only": False, "oversample": 8}
+    assert default.cache_spec() == fields
+    target = "tvrecon.data.touches.ConeTouchPolicy"
+    assert make_touch_policy({"_target_": target, "cone_deg": 15}).cache_spec() == fields  # int cone: same policy
+    other = make_touch_policy({"_target_": f"{__name__}._AlongNormal", "cone_deg": 15.0})
+    assert isinstance(other, _AlongNormal)
+    assert other.cache_spec() == {"_target_": f"{__name__}._AlongNormal", **fields}  # another class: another key
+    t = sample_touches(torus, 20, seed=0, policy=other)
+    assert torch.allclose(t.directions, -t.normals, atol=1e-6)
+    with pytest.raises(ValueError, match=r"unknown touch \(ConeTouchPolicy\) option\(s\) \['cone'\]"):
+        make_touch_policy({"cone": 15.0})
+    with pytest.raises(ValueError, match="names no importable class"):
+        make_touch_policy({"_target_": "tvrecon.data.touches.NoSuchPolicy"})
+    with pytest.raises(ValueError, match="is not a TouchPolicy dataclass"):
+        make_touch_policy({"_target_": "tvrecon.data.touches.Touches"})
