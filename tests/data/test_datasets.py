@@ -12,6 +12,7 @@ import trimesh
 from tvrecon.data.cache import cache_key
 from tvrecon.data.datasets import ReconstructionDataset, TactileClassificationDataset, coerce_config
 from tvrecon.data.shapes import ObjectLibrary
+from tvrecon.data.touches import Touches
 from tvrecon.sim.press import SensorConfig
 
 # tiny simulation: 8x8 pad, 3 layers, 32^3 grid, short fast presses, one press strength
@@ -175,20 +176,20 @@ def test_corrupt_entry_is_regenerated_with_warning(tmp_path: Path, caplog):
 def test_unplaceable_touch_is_redrawn(recon_cache: Path):
     ds = recon(recon_cache)
     mesh = ds.mesh(0)  # a cube: pressing from inside outwards cannot be placed
-    good = {
-        "positions": torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5]]),
-        "directions": torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]),  # second one points out of the object
-        "normals": torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
-        "strengths": [{"threshold": 0.05}, {"threshold": 0.05}],
-    }
+    good = Touches(
+        positions=torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5]]),
+        directions=torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]),  # second one points out of the object
+        normals=torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
+        strengths=[{"threshold": 0.05}, {"threshold": 0.05}],
+    )
     with pytest.raises(ValueError):
-        ds.simulator.press(mesh, good["positions"][1], good["directions"][1], max_steps=1)
+        ds.simulator.press(mesh, good.positions[1], good.directions[1], max_steps=1)
     fixed = ds._placeable_touches(mesh, good, seed=5)
-    assert torch.equal(fixed["positions"][0], good["positions"][0])  # accepted touches are kept
-    assert not torch.equal(fixed["directions"][1], good["directions"][1])  # the rejected one is re-drawn
+    assert torch.equal(fixed.positions[0], good.positions[0])  # accepted touches are kept
+    assert not torch.equal(fixed.directions[1], good.directions[1])  # the rejected one is re-drawn
     again = ds._placeable_touches(mesh, good, seed=5)
-    assert torch.equal(again["positions"], fixed["positions"])  # deterministic
-    ds.simulator.press(mesh, fixed["positions"][1], fixed["directions"][1], max_steps=1)
+    assert torch.equal(again.positions, fixed.positions)  # deterministic
+    ds.simulator.press(mesh, fixed.positions[1], fixed.directions[1], max_steps=1)
 
 
 def test_dataset_pickles_without_simulator(recon_cache: Path):

@@ -10,7 +10,7 @@ from PIL import Image
 
 from tvrecon.data.preview import draw_preview, main, save_figure_atomic
 from tvrecon.data.render import render_view, sample_camera
-from tvrecon.data.touches import TouchPolicy, sample_touches
+from tvrecon.data.touches import ConeTouchPolicy, sample_touches
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -27,11 +27,11 @@ def test_draw_and_atomic_save(tmp_path) -> None:
     mesh = trimesh.creation.torus(0.3, 0.12)
     cam = sample_camera(0, image_size=64)
     view = render_view(mesh, cam, seed=0)
-    tt = sample_touches(mesh, 5, 0, TouchPolicy(visible_only=True), camera=cam)
+    tt = sample_touches(mesh, 5, 0, ConeTouchPolicy(visible_only=True), camera=cam)
     yy, xx = torch.meshgrid(torch.arange(16.0), torch.arange(16.0), indexing="ij")
     blob = torch.exp(-((yy - 8) ** 2 + (xx - 7) ** 2) / 10)
     tactile = torch.stack([torch.stack([0.1 * blob, -0.1 * blob, blob * (t + 1)]) for t in range(5)])
-    fig = draw_preview(view["image"], cam, tt["positions"], tt["directions"], tactile, labels=list("abcde"), title="x")
+    fig = draw_preview(view["image"], cam, tt.positions, tt.directions, tactile, labels=list("abcde"), title="x")
     out = save_figure_atomic(fig, tmp_path / "sub" / "p.png")
     assert out.read_bytes()[:8] == PNG_MAGIC
     with Image.open(out) as im:
@@ -44,7 +44,7 @@ def test_draw_and_atomic_save(tmp_path) -> None:
     os.umask(umask)
     assert out.stat().st_mode & 0o777 == 0o666 & ~umask
     with pytest.raises(ValueError, match=r"tactile must have shape \(T, 3, h, w\)"):
-        draw_preview(view["image"], cam, tt["positions"], tt["directions"], tactile[:2])
+        draw_preview(view["image"], cam, tt.positions, tt.directions, tactile[:2])
 
 
 @pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")

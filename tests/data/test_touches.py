@@ -1,5 +1,7 @@
 """Touch policies: surface sampling, press-direction cones, visibility, batching into the simulator, resizing."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -7,8 +9,10 @@ import trimesh
 
 from tvrecon.data.render import sample_camera
 from tvrecon.data.touches import (
-    TouchPolicy,
+    ConeTouchPolicy,
+    Touches,
     cone_directions,
+    make_touch_policy,
     pad_footprint,
     pad_reachable,
     resize_tactile,
@@ -29,9 +33,9 @@ def _angles_deg(a: torch.Tensor, b: torch.Tensor) -> np.ndarray:
 
 
 def test_positions_on_surface_and_directions_in_cone(torus: trimesh.Trimesh) -> None:
-    policy = TouchPolicy(cone_deg=20.0)
+    policy = ConeTouchPolicy(cone_deg=20.0)
     t = sample_touches(torus, 300, seed=1, policy=policy)
-    pos, dirs, normals = t["positions"], t["directions"], t["normals"]
+    pos, dirs, normals = t.positions, t.directions, t.normals
     assert pos.shape == (300, 3) and dirs.shape == (300, 3) and pos.dtype == torch.float32
     closest, dist, tri = trimesh.proximity.closest_point(torus, pos.numpy())
     assert dist.max() < 1e-5
@@ -40,14 +44,14 @@ def test_positions_on_surface_and_directions_in_cone(torus: trimesh.Trimesh) -> 
     assert torch.allclose(dirs.norm(dim=1), torch.ones(300), atol=1e-5)
     ang = _angles_deg(dirs, -true_n)
     assert ang.max() <= 20.0 + 1.0 and ang.max() > 15.0  # fills the cone, never leaves it
-    assert all(s in policy.strengths for s in t["strengths"])
+    assert all(s in policy.strengths for s in t.strengths)
 
 
 def test_zero_cone_is_inward_normal(torus: trimesh.Trimesh) -> None:
-    t = sample_touches(torus, 50, seed=2, policy=TouchPolicy(cone_deg=0.0))
-    assert torch.allclose(t["directions"], -t["normals"], atol=1e-6)
+    t = sample_touches(torus, 50, seed=2, policy=ConeTouchPolicy(cone_deg=0.0))
+    assert torch.allclose(t.directions, -t.normals, atol=1e-6)
     # inward: a small step along the direction goes inside the (watertight) torus
-    inside = torus.contains((t["positions"] + 0.01 * t["directions"]).numpy())
+    inside = torus.contains((t.positions + 0.01 * t.directions).numpy())
     assert inside.all()
 
 
@@ -63,20 +67,20 @@ def test_cone_is_uniform_on_the_cap() -> None:
 
 def test_area_weighted_sampling() -> None:
     slab = trimesh.creation.box((1.0, 1.0, 0.1))
-    pos = sample_touches(slab, 4000, seed=0)["positions"]
+    pos = sample_touches(slab, 4000, seed=0).positions
     on_big_faces = (pos[:, 2].abs() > 0.05 - 1e-6).float().mean().item()
     assert on_big_faces == pytest.approx(2.0 / 2.4, abs=0.03)
 
 
 def test_strengths_and_determinism(torus: trimesh.Trimesh) -> None:
-    policy = TouchPolicy(strengths=[{"depth": 2.0}, {"depth": 3.0}, {"force": 1.5}])
+    policy = ConeTouchPolicy(strengths=[{"depth": 2.0}, {"depth": 3.0}, {"force": 1.5}])
     a = sample_touches(torus, 200, seed=5, policy=policy)
     b = sample_touches(torus, 200, seed=5, policy=policy)
     c = sample_touches(torus, 200, seed=6, policy=policy)
-    assert torch.equal(a["positions"], b["positions"]) and torch.equal(a["directions"], b["directions"])
-    assert a["strengths"] == b["strengths"]
-    assert not torch.equal(a["positions"], c["positions"])
-    assert {tuple(s.items()) for s in a["strengths"]} == {(("depth", 2.0),), (("depth", 3.0),), (("force", 1.5),)}
+    assert torch.equal(a.positions, b.positions) and torch.equal(a.directions, b.directions)
+    assert a.strengths == b.strengths
+    assert not torch.equal(a.positions, c.positions)
+    assert {tuple(s.items()) for s in a.strengths} == {(("depth", 2.0),), (("depth", 3.0),), (("force", 1.5),)}
 
 
 def _first_hit_is_point(mesh: trimesh.Trimesh, center: np.ndarray, p: np.ndarray) -> bool:
@@ -89,8 +93,8 @@ def _first_hit_is_point(mesh: trimesh.Trimesh, center: np.ndarray, p: np.ndarray
 def test_visible_only(torus: trimesh.Trimesh) -> None:
     cam = sample_camera(4, image_size=64)
     center = cam.center.double().numpy()
-    t = sample_touches(torus, 12, seed=0, policy=TouchPolicy(visible_only=True), camera=cam)
-    for p in t["positions"].double().numpy():
+    t = sample_touches(torus, 12, seed=0, policy=ConeTouchPolicy(visible_only=True), camera=cam)
+    for p in t.positions.double().numpy():
         assert _first_hit_is_point(torus, center, p)
     # the filter actually rejects something: plain samples include hidden points
     pts, faces = trimesh.sample.sample_surface(torus, 200, seed=0)
@@ -102,13 +106,13 @@ def test_visible_only(torus: trimesh.Trimesh) -> None:
 
 def test_bad_inputs(torus: trimesh.Trimesh) -> None:
     with pytest.raises(ValueError, match="camera"):
-        sample_touches(torus, 3, 0, TouchPolicy(visible_only=True))
+        sample_touches(torus, 3, 0, ConeTouchPolicy(visible_only=True))
     with pytest.raises(ValueError, match="cone_deg"):
-        TouchPolicy(cone_deg=95.0)
+        ConeTouchPolicy(cone_deg=95.0)
     with pytest.raises(ValueError, match="strengths"):
-        TouchPolicy(strengths=[])
+        ConeTouchPolicy(strengths=[])
     with pytest.raises(ValueError, match="strengths"):
-        TouchPolicy(strengths={"depth": 2.0})
+        ConeTouchPolicy(strengths={"depth": 2.0})
     with pytest.raises(ValueError, match="n "):
         sample_touches(torus, 0, 0)
     with pytest.raises(ValueError, match="no faces"):
@@ -149,15 +153,15 @@ class _RecordingSim:
 
 
 def test_simulate_touches_batches_by_strength(torus: trimesh.Trimesh) -> None:
-    policy = TouchPolicy(strengths=[{"depth": 2.0}, {"threshold": 0.05}])
+    policy = ConeTouchPolicy(strengths=[{"depth": 2.0}, {"threshold": 0.05}])
     t = sample_touches(torus, 21, seed=3, policy=policy)
     sim = _RecordingSim()
     out = simulate_touches(sim, torus, t, batch_size=4)
     assert len(out) == 21
     for i, (pos, strength) in enumerate(out):  # results come back in touch order with their own strength
-        assert pos == tuple(t["positions"][i].tolist()) and strength == t["strengths"][i]
+        assert pos == tuple(t.positions[i].tolist()) and strength == t.strengths[i]
     assert all(n <= 4 for n, _ in sim.calls)
-    n_depth = sum(s == {"depth": 2.0} for s in t["strengths"])
+    n_depth = sum(s == {"depth": 2.0} for s in t.strengths)
     assert len(sim.calls) == -(-n_depth // 4) + -(-(21 - n_depth) // 4)
 
 
@@ -187,14 +191,14 @@ def test_real_simulation_contact_images(one_thread) -> None:
     from tvrecon.sim.sensor import SensorConfig
 
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.12)
-    policy = TouchPolicy(cone_deg=0.0, strengths=[{"depth": 0.75}, {"depth": 1.5}])
+    policy = ConeTouchPolicy(cone_deg=0.0, strengths=[{"depth": 0.75}, {"depth": 1.5}])
     t = sample_touches(sphere, 2, seed=0, policy=policy)
-    t["strengths"] = [{"depth": 0.75}, {"depth": 1.5}]  # one of each
+    t = t._replace(strengths=[{"depth": 0.75}, {"depth": 1.5}])  # one of each
     sim = EIPSimulator(SensorConfig(resolution=(16, 16)), PressConfig(n_grid=64))
     readings = simulate_touches(sim, sphere, t, batch_size=2)
     assert len(readings) == 2
     centre_z = []
-    for r, pos in zip(readings, t["positions"]):
+    for r, pos in zip(readings, t.positions):
         assert r.contact
         assert r.image.shape == (3, 16, 16)
         z = r.image[2]
@@ -242,11 +246,11 @@ def test_sim_aware_sampling_is_accepted_by_the_simulator(one_thread) -> None:
     sim = EIPSimulator(SensorConfig(resolution=(32, 32)), PressConfig(n_grid=64))
     width, clearance = pad_footprint(sim)
     assert width == pytest.approx(2 * np.hypot(7.75, 7.75) / 64) and clearance > 0
-    t = sample_touches(gear, 4, seed=0, policy=TouchPolicy(cone_deg=10.0), sim=sim)
-    for p, d in zip(t["positions"], t["directions"]):
+    t = sample_touches(gear, 4, seed=0, policy=ConeTouchPolicy(cone_deg=10.0), sim=sim)
+    for p, d in zip(t.positions, t.directions):
         sim.press_batch(gear, p[None], d[None], max_steps=1)  # raises ValueError if the pad cannot be placed
-    plain = sample_touches(gear, 200, seed=0, policy=TouchPolicy(cone_deg=10.0))
-    ok = pad_reachable(gear, plain["positions"].numpy(), plain["directions"].numpy(), width, clearance)
+    plain = sample_touches(gear, 200, seed=0, policy=ConeTouchPolicy(cone_deg=10.0))
+    ok = pad_reachable(gear, plain.positions.numpy(), plain.directions.numpy(), width, clearance)
     assert 0.05 < 1 - ok.mean() < 0.95  # the filter matters on this object
 
 
@@ -259,9 +263,47 @@ def test_visible_touches_land_on_the_rendered_object() -> None:
     mug = make_shape("mug", seed=3)
     cam = sample_camera(2, image_size=160)
     view = render_view(mug, cam, seed=0)
-    t = sample_touches(mug, 40, seed=1, policy=TouchPolicy(visible_only=True), camera=cam)
-    uv = project_points(t["positions"], cam.K, cam.RT).round().long()
-    z = world_to_camera(t["positions"], cam.RT)[:, 2]
+    t = sample_touches(mug, 40, seed=1, policy=ConeTouchPolicy(visible_only=True), camera=cam)
+    uv = project_points(t.positions, cam.K, cam.RT).round().long()
+    z = world_to_camera(t.positions, cam.RT)[:, 2]
     assert view["mask"][uv[:, 1], uv[:, 0]].all()
     err = (view["depth"][uv[:, 1], uv[:, 0]] - z).abs()
     assert err.median() < 0.01 and (err < 0.03).float().mean() > 0.9
+
+
+def test_policy_sample_is_sample_touches_with_a_seeded_rng(torus: trimesh.Trimesh) -> None:
+    policy = ConeTouchPolicy(cone_deg=10.0)
+    a = sample_touches(torus, 7, seed=3, policy=policy)
+    b = policy.sample(torus, 7, np.random.default_rng(3))
+    assert isinstance(a, Touches) and a._fields == ("positions", "directions", "normals", "strengths")
+    assert all(torch.equal(x, y) for x, y in zip(a[:3], b[:3], strict=True)) and a.strengths == b.strengths
+
+
+@dataclasses.dataclass
+class _AlongNormal(ConeTouchPolicy):
+    """A policy other than the default: the default's points, pressed exactly along the inward normal."""
+
+    def sample(self, mesh, n, rng, camera=None, sim=None) -> Touches:
+        points, normals, _ = self._candidates(mesh, n, n, rng, camera, sim)
+        return self._touches(points[:n], normals[:n], -normals[:n], rng)
+
+
+def test_make_touch_policy_and_cache_spec(torus: trimesh.Trimesh) -> None:
+    default = make_touch_policy(None)
+    assert default == ConeTouchPolicy() and make_touch_policy(default) is default
+    # the default's cache spec is its fields only: the touch_policy entry of samples cached before policies existed
+    fields = {"cone_deg": 15.0, "strengths": default.strengths, "visible_only": False, "oversample": 8}
+    assert default.cache_spec() == fields
+    target = "tvrecon.data.touches.ConeTouchPolicy"
+    assert make_touch_policy({"_target_": target, "cone_deg": 15}).cache_spec() == fields  # int cone: same policy
+    other = make_touch_policy({"_target_": f"{__name__}._AlongNormal", "cone_deg": 15.0})
+    assert isinstance(other, _AlongNormal)
+    assert other.cache_spec() == {"_target_": f"{__name__}._AlongNormal", **fields}  # another class: another key
+    t = sample_touches(torus, 20, seed=0, policy=other)
+    assert torch.allclose(t.directions, -t.normals, atol=1e-6)
+    with pytest.raises(ValueError, match=r"unknown touch \(ConeTouchPolicy\) option\(s\) \['cone'\]"):
+        make_touch_policy({"cone": 15.0})
+    with pytest.raises(ValueError, match="names no importable class"):
+        make_touch_policy({"_target_": "tvrecon.data.touches.NoSuchPolicy"})
+    with pytest.raises(ValueError, match="is not a TouchPolicy dataclass"):
+        make_touch_policy({"_target_": "tvrecon.data.touches.Touches"})

@@ -39,7 +39,14 @@ from tvrecon.data.render import render_view, sample_camera
 from tvrecon.data.shapes import ObjectLibrary
 from tvrecon.data.tactile_augment import orient_touches
 from tvrecon.data.touch_select import TouchSelector
-from tvrecon.data.touches import TouchPolicy, resize_tactile, sample_touches, simulate_touches
+from tvrecon.data.touches import (
+    Touches,
+    TouchPolicy,
+    make_touch_policy,
+    resize_tactile,
+    sample_touches,
+    simulate_touches,
+)
 from tvrecon.sim.contact import contact_patch
 from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
 
@@ -96,7 +103,9 @@ class GeneratedDataset(Dataset):
         library: the object library (default ``ObjectLibrary()``, the 35 procedural classes).
         instance_offset: first instance number used for each class.
         touches_per_item: touches simulated and cached per item (M).
-        sensor, press, touch: simulator and touch-policy configs (dataclass or mapping).
+        sensor, press: simulator configs (dataclass or mapping).
+        touch: the touch policy: a :class:`~tvrecon.data.touches.TouchPolicy` or a mapping of its fields with an
+            optional ``_target_`` (default :class:`~tvrecon.data.touches.ConeTouchPolicy`).
         tactile_size: model resolution (h, w) the tactile images are resized to on load.
         tactile_scale: divisor of the raw displacement (grid cells), see the module docstring.
         cache_dir: cache directory; ``None`` disables caching.
@@ -144,7 +153,7 @@ class GeneratedDataset(Dataset):
         self.touches_per_item = int(touches_per_item)
         self.sensor = coerce_config(SensorConfig, sensor)
         self.press = coerce_config(PressConfig, press)
-        self.touch = coerce_config(TouchPolicy, touch)
+        self.touch = make_touch_policy(touch)
         self.tactile_size = _pair(tactile_size, "tactile_size")
         self.tactile_scale = float(tactile_scale)
         self.cache = SampleCache(cache_dir)
@@ -205,7 +214,7 @@ class GeneratedDataset(Dataset):
             "mesh": self.library.params(cls, instance, self.split),
             "seeds": self.seeds(index)[:3],
             "touches": self.touches_per_item,
-            "touch_policy": self.touch,
+            "touch_policy": self.touch.cache_spec(),  # the default policy's key is unchanged by pluggability
             "sensor": self.sensor,
             "press": self.press,
         }
@@ -235,14 +244,14 @@ class GeneratedDataset(Dataset):
         }
 
     def _placeable_touches(
-        self, mesh: trimesh.Trimesh, touches: dict, seed: int, camera: Any = None, attempts: int = 20
-    ) -> dict:
+        self, mesh: trimesh.Trimesh, touches: Touches, seed: int, camera: Any = None, attempts: int = 20
+    ) -> Touches:
         """Replace the touches the simulator rejects with seeded re-draws (deterministic in ``seed``).
 
         Each touch is probed with a one-step press; a rejected touch ``t`` is re-drawn with seed
         ``SeedSequence([seed, t, attempt])`` until one is accepted. Raises ValueError when no attempt works.
         """
-        out = {k: list(v) if isinstance(v, list) else v.clone() for k, v in touches.items()}
+        out = {k: list(v) if isinstance(v, list) else v.clone() for k, v in touches._asdict().items()}
 
         def rejected(pos: Tensor, d: Tensor) -> str | None:
             try:
@@ -260,11 +269,11 @@ class GeneratedDataset(Dataset):
                     raise ValueError(f"no placeable touch found for touch {t} after {attempts} re-draws: {why}")
                 sub = int(np.random.SeedSequence([seed, t, attempt]).generate_state(1)[0])
                 new = sample_touches(mesh, 1, seed=sub, policy=self.touch, camera=camera, sim=self.simulator)
-                why = rejected(new["positions"][0], new["directions"][0])
+                why = rejected(new.positions[0], new.directions[0])
                 if why is None:
-                    for k, v in new.items():
+                    for k, v in new._asdict().items():
                         out[k][t] = v[0]
-        return out
+        return Touches(**out)
 
     def generate(self, index: int) -> dict[str, np.ndarray]:
         """Generate the raw entry of item ``index`` (no cache). Subclasses implement this."""

@@ -1,6 +1,10 @@
 """Data presets: the paper's Table 1 split sizes and the Hydra configs ``configs/data/<preset>.yaml``.
 
-The YAML files are the source of truth for training (``python train.py data=small``); this module holds the
+The YAML files are the source of truth for training (``python train.py data=small``). A preset is a defaults list
+of blocks in config groups under ``configs/data/``: ``base/`` (datamodule settings: ``recon`` or ``cls`` on top of
+``common``), ``sensor/``, ``press/``, ``render/`` (``tiny``, ``small``, ``paper``) and ``touch/`` (the touch policy,
+``cone``), plus its own split sizes and resolutions; one block can be swapped from the command line
+(``data/sensor=paper``, or ``sensor=paper`` with :func:`compose_preset`). This module holds the
 paper's numbers, counts what a datamodule config generates (:func:`split_sizes`) so tests can check that
 ``paper.yaml`` / ``cls_paper.yaml`` reproduce Table 1, and composes a preset by name (:func:`compose_preset`) for the
 ``generate`` CLI.
@@ -63,7 +67,8 @@ TABLE1: dict[str, dict[str, SplitSize]] = {
 
 
 def preset_names() -> list[str]:
-    """Names of the YAML presets present in :data:`CONFIG_DIR` (e.g. ``tiny``, ``cls_small``)."""
+    """Names of the YAML presets present in :data:`CONFIG_DIR` (e.g. ``tiny``, ``cls_small``; the blocks in its
+    sub-folders are not presets)."""
     return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
 
 

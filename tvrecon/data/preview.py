@@ -26,7 +26,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from tvrecon.atomic import atomic_savefig  # noqa: E402
 from tvrecon.data.render import Camera, project_points, render_view, sample_camera  # noqa: E402
-from tvrecon.data.touches import TouchPolicy, sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.touches import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
 
 __all__ = ["make_preview", "draw_preview", "save_figure_atomic", "main"]
 
@@ -191,20 +191,20 @@ def make_preview(
     mesh = make_shape(shape, seed=seed)
     camera = sample_camera(seed, image_size=image_size, fov_deg=fov_deg)
     view = render_view(mesh, camera, seed=seed)
-    policy = TouchPolicy(cone_deg=cone_deg, visible_only=True)
+    policy = ConeTouchPolicy(cone_deg=cone_deg, visible_only=True)
     sim = EIPSimulator(SensorConfig(resolution=(pad, pad)), PressConfig(n_grid=n_grid), device=device)
     tt = sample_touches(mesh, touches, seed, policy, camera=camera, sim=sim)  # only touches the pad can reach
     readings = simulate_touches(sim, mesh, tt, progress=True)
     tactile = torch.stack([r.image.detach().cpu() for r in readings])  # (T, 3, h, w)
     labels = []
-    for r, s in zip(readings, tt["strengths"]):
+    for r, s in zip(readings, tt.strengths):
         rule = ", ".join(f"{k} {v:g}" if isinstance(v, (int, float)) else f"{k} {v}" for k, v in s.items())
         labels.append(f"depth {r.depth:.1f} ({rule})" if r.contact else "no contact")
     fig = draw_preview(
         view["image"],
         camera,
-        tt["positions"],
-        tt["directions"],
+        tt.positions,
+        tt.directions,
         tactile,
         labels=labels,
         title=f"{shape}  ·  seed {seed}  ·  {touches} touches  ·  pad {pad}x{pad}",

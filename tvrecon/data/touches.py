@@ -1,17 +1,23 @@
 """Touch policies: where, in which direction and how hard the sensor presses.
 
-A touch is a contact point sampled on the surface (area-weighted, optionally only where the camera sees the
-object), a press direction along the inward normal perturbed uniformly inside a cone, and a press strength (the
-simulator's stop rule: a terminal-chamfer (paper eq. 12) ``threshold``, an indentation ``depth`` or a ``force``)
-drawn from a configured list: the paper's "different press directions and forces". `simulate_touches` runs them through
-`EIPSimulator.press_batch`; `resize_tactile` brings raw tactile images to the model resolution with kornia.
+A touch is a contact point on the surface, a press direction into the object and a press strength (the simulator's
+stop rule: a terminal-chamfer (paper eq. 12) ``threshold``, an indentation ``depth`` or a ``force``). A
+:class:`TouchPolicy` samples them: ``policy.sample(mesh, n, rng, camera=, sim=)`` returns :class:`Touches`. The
+default, :class:`ConeTouchPolicy`, draws area-weighted points (optionally only where the camera sees the object),
+directions in a cone around the inward normal and strengths from a configured list: the paper's "different press
+directions and forces". Data configs pick a policy with ``touch._target_`` (:func:`make_touch_policy`).
+
+`sample_touches` seeds a policy, `simulate_touches` runs the touches through `EIPSimulator.press_batch`,
+`resize_tactile` brings raw tactile images to the model resolution with kornia.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import kornia
 import numpy as np
@@ -20,6 +26,7 @@ import trimesh
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from tvrecon.config_utils import coerce_config
 from tvrecon.data.render import Camera, ray_intersector
 from tvrecon.geometry import check_mesh, perpendicular_basis, world_to_camera
 
@@ -27,7 +34,10 @@ if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touc
     from tvrecon.sim.press import EIPSimulator, TactileReading
 
 __all__ = [
+    "ConeTouchPolicy",
     "TouchPolicy",
+    "Touches",
+    "make_touch_policy",
     "cone_directions",
     "pad_footprint",
     "pad_reachable",
@@ -44,9 +54,61 @@ def _default_strengths() -> tuple[dict, ...]:
     return ({"threshold": 0.025}, {"threshold": 0.05}, {"threshold": 0.1})
 
 
-@dataclass
+class Touches(NamedTuple):
+    """T sampled touches, what every :class:`TouchPolicy` returns.
+
+    Attributes:
+        positions: (T, 3) float32 world points on the surface.
+        directions: (T, 3) float32 unit press directions (into the object).
+        normals: (T, 3) float32 outward surface normals at the positions.
+        strengths: T dicts of `EIPSimulator.press` overrides (the stop rule of each press).
+    """
+
+    positions: Tensor
+    directions: Tensor
+    normals: Tensor
+    strengths: list[dict]
+
+
 class TouchPolicy:
-    """How touches are sampled.
+    """Where, in which direction and how hard to press: the interface of the touch policies.
+
+    A policy is a dataclass (its fields are its configuration) with :meth:`sample`. The data configs select one with
+    ``touch._target_`` (``configs/data/touch/*.yaml``); :func:`make_touch_policy` builds it. Its fields go into the
+    cache key of every sample (:meth:`cache_spec`).
+    """
+
+    def sample(
+        self,
+        mesh: trimesh.Trimesh,
+        n: int,
+        rng: np.random.Generator,
+        camera: Camera | None = None,
+        sim: EIPSimulator | None = None,
+    ) -> Touches:
+        """Sample ``n`` touches on ``mesh`` (see :func:`sample_touches` for the arguments)."""
+        raise NotImplementedError
+
+    def cache_spec(self) -> dict[str, Any]:
+        """What of the policy goes into a sample's cache key: its class and its fields.
+
+        The default policy (:class:`ConeTouchPolicy`, exactly that class) gives its fields only, the key every sample
+        had before policies were pluggable, so existing caches stay valid; any other policy adds its ``_target_``.
+        """
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+        if type(self) is ConeTouchPolicy:
+            return fields
+        return {"_target_": f"{type(self).__module__}.{type(self).__qualname__}", **fields}
+
+
+@dataclass
+class ConeTouchPolicy(TouchPolicy):
+    """The default policy: area-weighted surface points, press directions in a cone around the inward normal.
+
+    Contact points are drawn uniformly by area (optionally only where the camera sees the object, and only where
+    the simulator's pad can approach), each press direction uniformly by solid angle inside a cone around the
+    inward normal -n, and each strength uniformly from ``strengths``: the paper's "different press directions and
+    forces".
 
     Attributes:
         cone_deg: half-angle (degrees) of the cone around the inward normal -n in which press directions are
@@ -63,21 +125,133 @@ class TouchPolicy:
     oversample: int = 8
 
     def __post_init__(self) -> None:
-        if not 0.0 <= float(self.cone_deg) < 90.0:
-            raise ValueError(f"TouchPolicy.cone_deg must be in [0, 90) degrees, got {self.cone_deg}")
+        what = type(self).__name__
+        self.cone_deg = float(self.cone_deg)  # `cone_deg=15` and `cone_deg=15.0`: one policy, one cache key
+        self.visible_only = bool(self.visible_only)
+        self.oversample = int(self.oversample)
+        if not 0.0 <= self.cone_deg < 90.0:
+            raise ValueError(f"{what}.cone_deg must be in [0, 90) degrees, got {self.cone_deg}")
         if isinstance(self.strengths, Mapping) or len(self.strengths) == 0:
             raise ValueError(
-                f"TouchPolicy.strengths must be a non-empty list of dicts like [{{'threshold': 0.05}}], "
+                f"{what}.strengths must be a non-empty list of dicts like [{{'threshold': 0.05}}], "
                 f"got {self.strengths!r}"
             )
         strengths = []
         for s in self.strengths:
             if not isinstance(s, Mapping):
-                raise ValueError(f"each TouchPolicy.strengths entry must be a dict of press overrides, got {s!r}")
+                raise ValueError(f"each {what}.strengths entry must be a dict of press overrides, got {s!r}")
             strengths.append({str(k): v for k, v in s.items()})
         self.strengths = tuple(strengths)
-        if int(self.oversample) < 1:
-            raise ValueError(f"TouchPolicy.oversample must be >= 1, got {self.oversample}")
+        if self.oversample < 1:
+            raise ValueError(f"{what}.oversample must be >= 1, got {self.oversample}")
+
+    def sample(
+        self,
+        mesh: trimesh.Trimesh,
+        n: int,
+        rng: np.random.Generator,
+        camera: Camera | None = None,
+        sim: EIPSimulator | None = None,
+    ) -> Touches:
+        points, normals, directions = self._candidates(mesh, n, n, rng, camera, sim)
+        return self._touches(points[:n], normals[:n], directions[:n], rng)
+
+    def _candidates(
+        self,
+        mesh: trimesh.Trimesh,
+        n: int,
+        count: int,
+        rng: np.random.Generator,
+        camera: Camera | None,
+        sim: EIPSimulator | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At least ``n`` candidate (points, outward normals, directions) passing the filters, in draw order.
+
+        ``count`` candidates are drawn when nothing is filtered (``n * oversample`` when something is), four times
+        more on each retry when too few pass.
+        """
+        if self.visible_only and not isinstance(camera, Camera):
+            raise ValueError(f"{type(self).__name__}.visible_only needs the view: pass camera=Camera(...)")
+        filtered = self.visible_only or sim is not None
+        footprint = pad_footprint(sim) if sim is not None else None
+        kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        count = n * self.oversample if filtered else count
+        for _ in range(4):  # grow the candidate pool when few candidates pass the filters
+            pts, faces = trimesh.sample.sample_surface(mesh, count, seed=rng)
+            normals = mesh.face_normals[faces]  # (C, 3) outward
+            dirs = cone_directions(-normals, self.cone_deg, rng)
+            keep = np.ones(len(pts), dtype=bool)
+            if self.visible_only:
+                keep &= visible_points(mesh, pts, normals, camera)
+            if footprint is not None:
+                idx = np.flatnonzero(keep)
+                keep[idx] = pad_reachable(mesh, pts[idx], dirs[idx], *footprint)
+            kept.append((pts[keep], normals[keep], dirs[keep]))
+            if sum(len(k[0]) for k in kept) >= n:
+                break
+            count *= 4
+        points, normals, directions = (np.concatenate([k[i] for k in kept]) for i in range(3))
+        if len(points) < n:
+            what = " and ".join(
+                w for w, on in (("visible from the camera", self.visible_only), ("reachable by the pad", sim)) if on
+            )
+            raise ValueError(
+                f"only {len(points)} of {n} touch points are {what}: is the camera inside the object or looking "
+                "away, or is the pad too large for this object? Use visible_only=False, another camera or a "
+                "smaller pad"
+            )
+        return points, normals, directions
+
+    def _touches(
+        self, points: np.ndarray, normals: np.ndarray, directions: np.ndarray, rng: np.random.Generator
+    ) -> Touches:
+        """The chosen candidates as :class:`Touches`, each with a strength drawn from ``strengths``."""
+        which = rng.integers(len(self.strengths), size=len(points))
+        return Touches(
+            positions=torch.as_tensor(points, dtype=torch.float32),
+            directions=torch.as_tensor(directions, dtype=torch.float32),
+            normals=torch.as_tensor(normals, dtype=torch.float32),
+            strengths=[dict(self.strengths[i]) for i in which],
+        )
+
+
+def make_touch_policy(value: TouchPolicy | Mapping[str, Any] | None) -> TouchPolicy:
+    """The policy of a data config's ``touch`` entry: a policy (kept), ``None`` (the default
+    :class:`ConeTouchPolicy`), or a mapping of its fields with an optional ``_target_`` naming its class
+    (default :class:`ConeTouchPolicy`); unknown fields raise ValueError listing the valid ones."""
+    if isinstance(value, TouchPolicy):
+        return value
+    if value is None:
+        return ConeTouchPolicy()
+    value = _plain(value)
+    if not isinstance(value, Mapping):
+        raise ValueError(f"touch must be a TouchPolicy or a mapping of its fields, got {type(value).__name__}")
+    fields = dict(value)
+    target = fields.pop("_target_", None)
+    cls = ConeTouchPolicy if target is None else _policy_class(str(target))
+    return coerce_config(cls, fields, f"touch ({cls.__name__})")
+
+
+def _plain(value: Any) -> Any:
+    try:
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(value, DictConfig):
+            return OmegaConf.to_container(value, resolve=True)
+    except ImportError:  # pragma: no cover - omegaconf is a hard dependency
+        pass
+    return value
+
+
+def _policy_class(target: str) -> type[TouchPolicy]:
+    module, _, name = target.rpartition(".")
+    try:
+        cls = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError, ValueError) as err:
+        raise ValueError(f"touch._target_ {target!r} names no importable class ({err})") from None
+    if not (isinstance(cls, type) and issubclass(cls, TouchPolicy) and dataclasses.is_dataclass(cls)):
+        raise ValueError(f"touch._target_ {target!r} is not a TouchPolicy dataclass")
+    return cls
 
 
 def cone_directions(axes: np.ndarray, half_angle_deg: float, rng: np.random.Generator) -> np.ndarray:
@@ -199,69 +373,34 @@ def sample_touches(
     policy: TouchPolicy | None = None,
     camera: Camera | None = None,
     sim: EIPSimulator | None = None,
-) -> dict:
-    """Sample `n` touches on `mesh` following `policy`.
+) -> Touches:
+    """Sample `n` touches on `mesh` following `policy`, from `seed`.
 
     Args:
         mesh: the object, world coordinates (watertight, outward normals).
         n: number of touches T >= 1.
         seed: RNG seed; the same (mesh, n, seed, policy, camera, sim configs) gives the same touches.
-        policy: the touch policy (default `TouchPolicy()`).
-        camera: the view, required when `policy.visible_only`.
+        policy: the touch policy (default `ConeTouchPolicy()`).
+        camera: the view, required when the policy keeps only visible points (`visible_only`).
         sim: optional simulator: when given, touches its pad cannot approach (see `pad_reachable`, e.g. inside a
             hole or between gear teeth narrower than the pad) are rejected, so `simulate_touches` accepts them all.
 
     Returns:
-        dict with "positions" (T, 3) float32 world points on the surface, "directions" (T, 3) float32 unit press
-        directions (into the object), "normals" (T, 3) float32 outward surface normals at the positions,
-        "strengths" list of T dicts of press overrides.
+        :class:`Touches` (positions, directions, normals, strengths).
     """
-    policy = policy if policy is not None else TouchPolicy()
+    policy = policy if policy is not None else ConeTouchPolicy()
     check_mesh(mesh, require_area=True)
     if int(n) < 1:
         raise ValueError(f"n (number of touches) must be >= 1, got {n}")
-    n = int(n)
-    if policy.visible_only and not isinstance(camera, Camera):
-        raise ValueError("TouchPolicy.visible_only needs the view: pass camera=Camera(...) to sample_touches")
-    rng = np.random.default_rng(seed)
-    filtered = policy.visible_only or sim is not None
-    footprint = pad_footprint(sim) if sim is not None else None
-    kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    count = n * int(policy.oversample) if filtered else n
-    for _ in range(4):  # grow the candidate pool when few candidates pass the filters
-        pts, faces = trimesh.sample.sample_surface(mesh, count, seed=rng)
-        normals = mesh.face_normals[faces]  # (C, 3) outward
-        dirs = cone_directions(-normals, float(policy.cone_deg), rng)
-        keep = np.ones(len(pts), dtype=bool)
-        if policy.visible_only:
-            keep &= visible_points(mesh, pts, normals, camera)
-        if footprint is not None:
-            idx = np.flatnonzero(keep)
-            keep[idx] = pad_reachable(mesh, pts[idx], dirs[idx], *footprint)
-        kept.append((pts[keep], normals[keep], dirs[keep]))
-        if sum(len(k[0]) for k in kept) >= n:
-            break
-        count *= 4
-    points, normals, directions = (np.concatenate([k[i] for k in kept])[:n] for i in range(3))
-    if len(points) < n:
-        what = " and ".join(
-            w for w, on in (("visible from the camera", policy.visible_only), ("reachable by the pad", sim)) if on
-        )
-        raise ValueError(
-            f"only {len(points)} of {n} touch points are {what}: is the camera inside the object or looking away, "
-            "or is the pad too large for this object? Use visible_only=False, another camera or a smaller pad"
-        )
-    which = rng.integers(len(policy.strengths), size=n)
-    return {
-        "positions": torch.as_tensor(points, dtype=torch.float32),
-        "directions": torch.as_tensor(directions, dtype=torch.float32),
-        "normals": torch.as_tensor(normals, dtype=torch.float32),
-        "strengths": [dict(policy.strengths[i]) for i in which],
-    }
+    return policy.sample(mesh, int(n), np.random.default_rng(seed), camera=camera, sim=sim)
 
 
 def simulate_touches(
-    sim: EIPSimulator, mesh: trimesh.Trimesh, touches: dict, batch_size: int = 8, progress: bool = False
+    sim: EIPSimulator,
+    mesh: trimesh.Trimesh,
+    touches: Touches | Mapping[str, Any],
+    batch_size: int = 8,
+    progress: bool = False,
 ) -> list[TactileReading]:
     """Simulate sampled touches with `sim.press_batch`, several touches per solver call.
 
@@ -271,19 +410,22 @@ def simulate_touches(
     Args:
         sim: the EIP simulator.
         mesh: the object the touches were sampled on, world coordinates.
-        touches: output of `sample_touches` ("positions" (T, 3), "directions" (T, 3), "strengths" T dicts).
+        touches: :class:`Touches` from `sample_touches` (or a mapping with "positions" (T, 3), "directions" (T, 3)
+            and "strengths" T dicts).
         batch_size: touches per `press_batch` call.
         progress: show a tqdm bar over touches.
 
     Returns:
         T `TactileReading`, in the order of the touches.
     """
-    for key in ("positions", "directions", "strengths"):
-        if key not in touches:
-            raise ValueError(f"touches must be the dict returned by sample_touches; missing key {key!r}")
-    pos = torch.as_tensor(touches["positions"], dtype=torch.float32)
-    dirs = torch.as_tensor(touches["directions"], dtype=torch.float32)
-    strengths = list(touches["strengths"])
+    if not isinstance(touches, Touches):
+        missing = [k for k in ("positions", "directions", "strengths") if k not in touches]
+        if missing:
+            raise ValueError(f"touches must be the Touches returned by sample_touches; missing key {missing[0]!r}")
+    get = (lambda k: getattr(touches, k)) if isinstance(touches, Touches) else touches.__getitem__
+    pos = torch.as_tensor(get("positions"), dtype=torch.float32)
+    dirs = torch.as_tensor(get("directions"), dtype=torch.float32)
+    strengths = list(get("strengths"))
     if pos.ndim != 2 or pos.shape[1] != 3 or dirs.shape != pos.shape or len(strengths) != len(pos):
         raise ValueError(
             f"touches need positions (T, 3), directions (T, 3) and T strengths; got {tuple(pos.shape)}, "

@@ -1,0 +1,139 @@
+"""The data presets resolve to pinned values, and their samples keep their pinned cache keys.
+
+``fixtures/data_presets.json`` holds, for every preset of ``configs/data/``, the resolved ``data`` node as train.py
+composes it (``data=<preset>`` in ``configs/train.yaml``) and as ``python -m tvrecon.data.generate`` composes it
+(:func:`tvrecon.data.presets.compose_preset`), plus the ``data`` node of every experiment. It was written before the
+presets were split into config groups (issue 16 item 6), so the composed presets are proven to give the same values.
+The one intended difference is ``touch._target_``, added when touch policies became pluggable (issue 16 item 5): it
+names the default policy, whose cache key it does not enter.
+
+``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
+means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update
+the fixture in the same commit).
+
+Regenerate (only on purpose): ``python tests/data/test_preset_snapshot.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from tvrecon.data.cache import cache_key
+from tvrecon.data.presets import compose_preset, default_cache_dir, preset_names
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIGS = ROOT / "configs"
+FIXTURES = Path(__file__).parent / "fixtures"
+PRESETS_FIXTURE = FIXTURES / "data_presets.json"
+KEYS_FIXTURE = FIXTURES / "data_cache_keys.json"
+PRESETS = ["cls_paper", "cls_small", "cls_tiny", "paper", "small", "tiny"]
+EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
+
+
+def _portable(value: Any, root: str, cache: str) -> Any:
+    """``value`` with the machine-dependent cache folder replaced by a placeholder."""
+    if isinstance(value, dict):
+        return {k: _portable(v, root, cache) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_portable(v, root, cache) for v in value]
+    if isinstance(value, str):
+        return value.replace(cache, "<CACHE>").replace(root, "<ROOT>")
+    return value
+
+
+def _train_data(overrides: list[str]) -> dict[str, Any]:
+    """Resolved ``data`` node of ``configs/train.yaml`` composed with ``overrides`` (as train.py does)."""
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONFIGS), version_base="1.3"):
+        cfg = compose(config_name="train", overrides=overrides)
+    root = os.environ.get("PROJECT_ROOT", ".")
+    return _portable(OmegaConf.to_container(cfg.data, resolve=True), root, f"{root}/data/cache")
+
+
+def _preset_data(name: str) -> dict[str, Any]:
+    """Resolved preset as ``python -m tvrecon.data.generate preset=<name>`` composes it."""
+    GlobalHydra.instance().clear()
+    cfg = compose_preset(name)
+    return _portable(OmegaConf.to_container(cfg, resolve=True), str(ROOT), str(default_cache_dir()))
+
+
+def snapshot() -> dict[str, Any]:
+    """Everything ``fixtures/data_presets.json`` pins."""
+    return {
+        "train": {name: _train_data([f"data={name}"]) for name in PRESETS},
+        "generate": {name: _preset_data(name) for name in PRESETS},
+        "experiment": {name: _train_data([f"experiment={name}"]) for name in EXPERIMENTS},
+    }
+
+
+def cache_keys(convert: str = "all") -> dict[str, dict[str, str]]:
+    """Cache key of item 0 of every split of every preset (nothing is generated).
+
+    ``convert``: Hydra's ``_convert_``; the generate CLI instantiates with ``"all"``, train.py with the default
+    ``"none"`` (the touch policy then gets OmegaConf lists and dicts).
+    """
+    out = {}
+    for name in PRESETS:
+        GlobalHydra.instance().clear()
+        dm = instantiate(compose_preset(name, ["cache_dir=null"]), _convert_=convert)
+        out[name] = {split: cache_key(dm.make_dataset(split).spec(0)) for split in dm.available_splits()}
+    return out
+
+
+@pytest.fixture(scope="module")
+def project_root() -> None:
+    # PROJECT_ROOT decides the cache folder; tests/train/conftest.py sets it the same way
+    os.environ.setdefault("PROJECT_ROOT", str(ROOT))
+
+
+def test_preset_list_is_pinned():
+    assert preset_names() == PRESETS
+
+
+#: Keys added to every preset on purpose since the fixture was written, with their value.
+ADDED = {("touch", "_target_"): "tvrecon.data.touches.ConeTouchPolicy"}
+
+
+def test_presets_resolve_to_pinned_values(project_root):
+    expected = json.loads(PRESETS_FIXTURE.read_text())
+    actual = snapshot()
+    assert sorted(actual["experiment"]) == sorted(expected["experiment"])
+    for how in ("train", "generate", "experiment"):
+        for name, cfg in expected[how].items():
+            got = actual[how][name]
+            for (block, key), value in ADDED.items():
+                assert got[block].pop(key) == value, f"{how} {name}: {block}.{key}"
+            assert got == cfg, f"{how} {name}: the composed data config changed"
+
+
+@pytest.mark.parametrize("convert", ["all", "none"])
+def test_cache_keys_are_pinned(project_root, convert: str):
+    assert cache_keys(convert) == json.loads(KEYS_FIXTURE.read_text())
+
+
+def test_default_policy_key_ignores_how_it_is_written(project_root):
+    """``touch.cone_deg=15`` (an int), the default policy with or without ``_target_``, or no touch block at all:
+    one policy, one key."""
+    expected = json.loads(KEYS_FIXTURE.read_text())["tiny"]["train"]
+    for overrides in (["touch.cone_deg=15"], ["~touch._target_"], ["~touch"]):
+        GlobalHydra.instance().clear()
+        dm = instantiate(compose_preset("tiny", ["cache_dir=null", *overrides]))
+        assert cache_key(dm.make_dataset("train").spec(0)) == expected, overrides
+
+
+if __name__ == "__main__":  # regenerate the fixtures (only when a change of values or keys is intended)
+    os.environ.setdefault("PROJECT_ROOT", str(ROOT))
+    FIXTURES.mkdir(exist_ok=True)
+    PRESETS_FIXTURE.write_text(json.dumps(snapshot(), indent=1, sort_keys=True) + "\n")
+    KEYS_FIXTURE.write_text(json.dumps(cache_keys(), indent=1, sort_keys=True) + "\n")
+    print(f"wrote {PRESETS_FIXTURE} and {KEYS_FIXTURE}", file=sys.stderr)
