@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -359,7 +360,10 @@ class EIPSimulator:
         travel = float(p.gap) + float(p.max_depth)
         lo = np.array([0.5 - (hx + 3) * dx, 0.5 - (hy + 3) * dx, zt - (travel - float(p.gap) + 3) * dx])
         hi = np.array([0.5 + (hx + 3) * dx, 0.5 + (hy + 3) * dx, zt + (float(p.gap) + 2) * dx])
-        collider = _colliders.MeshCollider(mdom, n_grid=int(p.n_grid), region=(lo, hi), device=self.device)
+        # open meshes (walls of zero thickness) are solid behind the first surface the pad meets
+        collider = _colliders.MeshCollider(
+            mdom, n_grid=int(p.n_grid), region=(lo, hi), device=self.device, from_above=True
+        )
         x_rest = pad_lattice(s, device=self.device) * dx + torch.tensor(
             [0.5, 0.5, zt + float(p.gap) * dx], device=self.device
         )
@@ -376,7 +380,10 @@ class EIPSimulator:
         """Press the pad onto ``mesh`` at ``position`` along ``direction``.
 
         Args:
-            mesh: object in world coordinates (watertight is best; the collider is a signed distance).
+            mesh: object in world coordinates. Watertight, or open (an open box, a plane, a mesh with holes):
+                an open mesh is solid behind the first surface the pad meets (``MeshCollider(from_above=True)``).
+                A touch that travels past the surface found under the pad without feeling it (a part thinner
+                than the grid resolves) warns (RuntimeWarning) instead of returning a silent miss.
             position: (3,) world point on or near the surface.
             direction: (3,) world press direction, pointing into the object (any non-zero length).
             **overrides: any :class:`SensorConfig` or :class:`PressConfig` field for this call (E and nu may be
@@ -524,6 +531,7 @@ class EIPSimulator:
                         tc.reading.force_field = (
                             column_force_field(particle_force[b], (H, W), int(s.layers)).float().cpu()
                         )
+                        _warn_if_passed_through(tc, p)
                         if p.record_every and tc.steps % int(p.record_every) != 0:
                             self._record(tc, xb[b], x0_contact, dx, s, p)
                         if tc.release_left > 0:
@@ -613,6 +621,23 @@ class EIPSimulator:
             tc.reading.frames = torch.stack(tc.frames)
             tc.reading.frame_steps = list(tc.frame_steps)
             tc.reading.particles = torch.stack(tc.particles)
+
+
+def _warn_if_passed_through(tc: _Touch, p: PressConfig) -> None:
+    """Warn when the pad went a cell or more past the surface found under its footprint without feeling it.
+
+    The rays of ``_setup`` saw the object under the pad, so a press without contact means the grid did not resolve
+    what the rays hit (a feature thinner than a cell between the nodes): not a clean miss.
+    """
+    past = tc.travel - float(p.gap)
+    if tc.reachable and not tc.contact and past >= 1.0 - 1e-6:
+        warnings.warn(
+            f"the pad went {past:.2f} cells past the object's surface under its footprint (touch point "
+            f"{[round(v, 4) for v in tc.origin.tolist()]}) without touching it: the object is thinner there than the "
+            f"grid resolves. Raise n_grid or lower domain_size so the part spans several cells, or press elsewhere",
+            RuntimeWarning,
+            stacklevel=4,
+        )
 
 
 def _select_blocks(state: ParticleState, keep: list[int], P: int) -> ParticleState:
