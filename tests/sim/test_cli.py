@@ -143,3 +143,16 @@ def test_cli_presses_an_open_box(tmp_path: Path, capsys) -> None:
     assert "contact=True" in capsys.readouterr().out
     data = np.load(out / "reading.npz")
     assert bool(data["contact"]) and float(data["depth"]) > 0.5 and float(data["image"][2].max()) > 0.5
+
+
+def test_cli_default_press_of_pybullet_duck(tmp_path: Path, capsys) -> None:
+    """Issue 14 case 6: the duck failed with "the pad would start inside the object" for the default direction
+    (its surface rises under the pad above where the placement rays started)."""
+    pybullet_data = pytest.importorskip("pybullet_data")
+    duck = Path(pybullet_data.getDataPath()) / "duck.obj"
+    if not duck.is_file():
+        pytest.skip("pybullet_data has no duck.obj")
+    out = tmp_path / "o"
+    args = ["press", "--shape", str(duck), "--out", str(out), "--n-grid", "64", "--resolution", "32", "--layers", "2"]
+    assert main(args + ["--depth", "0.5", "--frames", "1", "--ply", "0"]) == 0
+    assert "contact=True" in capsys.readouterr().out

@@ -320,3 +320,40 @@ def test_passing_through_an_unresolved_surface_warns(sim: EIPSimulator) -> None:
     with pytest.warns(RuntimeWarning, match="without touching it.*Raise n_grid or lower domain_size"):
         r = sim.press(sliver, [0.0, 0.0, 0.0], DOWN, max_depth=2.0)
     assert not r.contact
+
+
+def _slotted_block() -> trimesh.Trimesh:
+    """Two pillars with a slot between them above a base: the centre line meets the base 0.6 below the pillar tops."""
+
+    def block(lo: list[float], hi: list[float]) -> trimesh.Trimesh:
+        b = trimesh.creation.box(extents=np.subtract(hi, lo))
+        b.apply_translation(np.add(lo, hi) / 2)
+        return b
+
+    pillars = [block([-0.3, -0.3, 0.0], [-0.02, 0.3, 0.5]), block([0.02, -0.3, 0.0], [0.3, 0.3, 0.5])]
+    return trimesh.util.concatenate([*pillars, block([-0.3, -0.3, -0.5], [0.3, 0.3, -0.1])])
+
+
+def test_touch_position_starts_the_pad_clear_of_a_rising_surface() -> None:
+    """Issue 14 case 6: the default placement put the touch on the first hit of the centre line (the base, down the
+    slot); the pillars rising under the footprint put the pad inside the object."""
+    sim = EIPSimulator(SensorConfig(resolution=(8, 8), layers=2), PressConfig(n_grid=32))
+    slot = _slotted_block()
+    with pytest.raises(ValueError, match="start inside the object.*leave the position out"):
+        sim.press(slot, [0.0, 0.0, -0.1], DOWN, max_steps=1)  # the old default: the centre line's first hit
+    pos = sim.touch_position(slot, DOWN)
+    torch.testing.assert_close(pos, torch.tensor([0.0, 0.0, 0.5]), atol=1e-6, rtol=0.0)  # on the pillar tops
+    r = sim.press(slot, None, DOWN, depth=1.0)
+    assert r.contact and r.depth == pytest.approx(1.0, abs=0.1)
+    # sideways, the footprint meets the near pillar's face first
+    side = sim.touch_position(slot, [-1.0, 0.0, 0.0])
+    assert float(side[0]) == pytest.approx(0.3, abs=1e-6)
+
+
+def test_touch_position_moves_off_a_hole_and_refuses_an_edge_on_plane(sim: EIPSimulator) -> None:
+    ring = trimesh.creation.annulus(r_min=0.3, r_max=0.4, height=0.1)  # the pad at the centre sees only the hole
+    pos = sim.touch_position(ring, DOWN)
+    assert 0.29 < float(pos[:2].norm()) < 0.41 and float(pos[2]) == pytest.approx(0.05, abs=1e-6)
+    plane = trimesh.Trimesh([[-0.3, -0.3, 0.0], [0.3, -0.3, 0.0], [0.3, 0.3, 0.0]], [[0, 1, 2]])
+    with pytest.raises(ValueError, match="no ray along the direction .* meets the mesh.*choose a direction"):
+        sim.touch_position(plane, [1.0, 0.0, 0.0])
