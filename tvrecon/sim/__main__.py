@@ -149,10 +149,11 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
         n_grid=args.n_grid, depth=args.depth, force=args.force, record_every=1, progress=True, release_steps=0
     )
     sim = EIPSimulator(sensor, press)
-    if position is None:  # the first surface the pad meets along --direction, its footprint clear of the object
-        position = sim.touch_position(mesh, direction).numpy()
-        print(f"touch position (no --position given): {np.round(position, 4).tolist()}")
+    # without --position: the first surface the pad meets along --direction, its footprint clear of the object
     reading = sim.press(mesh, position, direction)
+    if position is None:
+        assert reading.origin is not None
+        print(f"touch position (no --position given): {np.round(reading.origin.numpy(), 4).tolist()}")
     files: dict[str, Path] = {}
     files["tactile"] = save_tactile_png(
         reading.image,

@@ -382,11 +382,12 @@ class EIPSimulator:
 
         The pad's footprint (its contact-layer particles, in the press frame) is centred on the line along
         ``direction`` through the centre of the mesh's bounding box. A ray along ``direction`` from outside the
-        bounding box through each footprint particle (and the centre) meets the object's first surface; the touch
+        bounding box through each footprint particle meets the object's first surface; the touch
         point is on the centre line at the highest of these hits (the first point the pad will touch), so the pad
         starts clear of the object however much the surface rises under it. When every ray misses (e.g. the hole
-        of a torus), the footprint moves to the hit nearest the centre line among rays cast over the whole bounding
-        box. (The data pipeline samples its own touches, see ``tvrecon.data.touches``.)
+        of a torus), the footprint moves so that its most central particle is over the hit nearest the centre line
+        among rays cast over the whole bounding box. (The data pipeline samples its own touches, see
+        ``tvrecon.data.touches``.)
 
         Args:
             mesh: object in world coordinates. direction: (3,) world press direction (into the object).
@@ -406,7 +407,7 @@ class EIPSimulator:
         mloc = trimesh.Trimesh(vertices=local, faces=np.asarray(mesh.faces), process=False)
         top = float(local[:, 2].max()) + dx  # outside the bounding box, on the pad's side
         lat = pad_lattice(s)[: s.resolution[0] * s.resolution[1], :2].double().numpy() * dx
-        foot = np.concatenate([np.zeros((1, 2)), lat])  # (1 + HW, 2) the centre and the contact particles
+        foot = lat  # (HW, 2) the contact particles' columns: the rays `_setup` casts from the touch point
 
         def first_hits(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             """(K, 2) ray columns -> (K,) height of the first surface met from above (-inf: miss), hit points."""
@@ -428,11 +429,15 @@ class EIPSimulator:
             if len(locs) == 0:
                 raise ValueError(
                     f"no ray along the direction {np.asarray(direction, dtype=float).tolist()} meets the mesh (it is "
-                    "seen edge-on, e.g. a flat plane pressed along itself): choose a direction that points into the "
+                    "seen edge-on or is thinner than the pad's particle spacing along it, e.g. a flat plane pressed "
+                    "along itself): choose a direction that points into the "
                     "object's surface, or give a position"
                 )
-            cxy = locs[np.argmin(np.linalg.norm(locs[:, :2], axis=1)), :2]
+            # the contact particle nearest the pad's centre goes over that hit
+            cxy = locs[np.argmin(np.linalg.norm(locs[:, :2], axis=1)), :2] - lat[np.argmin(np.linalg.norm(lat, axis=1))]
             z, _ = first_hits(foot + cxy)
+            if not np.isfinite(z).any():
+                z = np.array([float(locs[:, 2].max())])
         touch = np.array([cxy[0], cxy[1], float(z.max())])
         return torch.as_tensor(centre + R @ touch * S, dtype=torch.float32)
 
@@ -453,6 +458,15 @@ class EIPSimulator:
         """
         if position is None:
             position = self.touch_position(mesh, direction, **overrides)
+            reading = self.press_batch([mesh], [position], [direction], **overrides)[0]
+            if reading.steps == 0:  # the pad's rays met nothing at the touch point found for it
+                raise ValueError(
+                    f"the pad finds no surface under its footprint along the direction "
+                    f"{np.asarray(direction, dtype=float).tolist()}: the object is thinner than the pad's particle "
+                    "spacing seen along it (e.g. a sheet pressed on its edge). Choose another direction, give a "
+                    "position, or raise n_grid"
+                )
+            return reading
         return self.press_batch([mesh], [position], [direction], **overrides)[0]
 
     def press_batch(
