@@ -130,3 +130,29 @@ def test_cli_sensor_outputs_write_pngs(tmp_path: Path, capsys) -> None:
     np.testing.assert_allclose(data["force_field"].sum((0, 1)), data["frame"].T @ data["force"], rtol=1e-3, atol=1e-9)
     assert main(args + ["--outputs", "markers", "--marker-radius", "0"]) == 2
     assert "--marker-radius" in capsys.readouterr().err
+
+
+def test_cli_presses_an_open_box(tmp_path: Path, capsys) -> None:
+    """Issue 14 case 1: a box with two triangles removed, pressed with the CLI's defaults, gave contact=False."""
+    box = trimesh.creation.box()
+    path = tmp_path / "open_box.obj"
+    path.write_text(trimesh.Trimesh(box.vertices, box.faces[:10], process=False).export(file_type="obj"))
+    out = tmp_path / "o"
+    args = ["press", "--shape", str(path), "--out", str(out), "--n-grid", "32", "--resolution", "8", "--layers", "3"]
+    assert main(args + ["--frames", "1", "--ply", "0"]) == 0
+    assert "contact=True" in capsys.readouterr().out
+    data = np.load(out / "reading.npz")
+    assert bool(data["contact"]) and float(data["depth"]) > 0.5 and float(data["image"][2].max()) > 0.5
+
+
+def test_cli_default_press_of_pybullet_duck(tmp_path: Path, capsys) -> None:
+    """Issue 14 case 6: the duck failed with "the pad would start inside the object" for the default direction
+    (its surface rises under the pad above where the placement rays started)."""
+    pybullet_data = pytest.importorskip("pybullet_data")
+    duck = Path(pybullet_data.getDataPath()) / "duck.obj"
+    if not duck.is_file():
+        pytest.skip("pybullet_data has no duck.obj")
+    out = tmp_path / "o"
+    args = ["press", "--shape", str(duck), "--out", str(out), "--n-grid", "64", "--resolution", "32", "--layers", "2"]
+    assert main(args + ["--depth", "0.5", "--frames", "1", "--ply", "0"]) == 0
+    assert "contact=True" in capsys.readouterr().out

@@ -121,3 +121,21 @@ def test_mesh_collider_at_nodes_equals_lookup():
     pos = idx.to(torch.float32) * DX
     assert torch.allclose(sdf, mc.sdf(pos), atol=1e-6)
     assert torch.allclose(n, mc.normal(pos), atol=1e-5)
+
+
+def test_open_plane_from_above_is_solid_below_and_a_shell_otherwise():
+    """Issue 14 case 1: a zero-thickness plane between node planes had no solid node (the pad went through it)."""
+    z0 = 0.5 + 0.5 / 32  # half-way between the node planes, where the press puts the touch plane
+    plane = trimesh.Trimesh([[0.3, 0.3, z0], [0.7, 0.3, z0], [0.7, 0.7, z0], [0.3, 0.7, z0]], [[0, 1, 2], [0, 2, 3]])
+    region = ([0.4, 0.4, 0.4], [0.6, 0.6, 0.6])
+    pts = torch.tensor([[0.5, 0.5, 0.5], [0.5, 0.5, 0.5 - 3 / 32], [0.5, 0.5, 0.5 + 1 / 32]], dtype=torch.float64)
+    above = MeshCollider(plane, n_grid=32, region=region, from_above=True)
+    assert above.offset == 0.0
+    sdf = above.sdf(pts)
+    assert sdf[0] < 0 and sdf[1] < 0 and sdf[2] > 0  # behind the surface the pad meets: solid, in front: free
+    assert float(sdf[0]) == pytest.approx(-0.5 / 32, abs=1e-6)  # like a closed box's top face
+    assert float(above.normal(pts)[1, 2]) > 0.99
+    shell = MeshCollider(plane, n_grid=32, region=region)  # no approach side: a 2-cell shell
+    assert shell.offset == pytest.approx(1 / 32)
+    sdf = shell.sdf(pts)
+    assert sdf[0] < 0 and sdf[2] < 0 and sdf[1] > 0

@@ -265,3 +265,95 @@ def test_object_below_a_cell_is_refused_not_missed(sim: EIPSimulator) -> None:
     # the same box in a domain 30x smaller spans ~1.2 cells and is pressed
     r = sim.press(box, [0.0, 0.0, 0.0005], DOWN, domain_size=1 / 30, max_depth=1.0)
     assert r.contact
+
+
+BOX = trimesh.creation.box(extents=[0.5, 0.5, 0.5])
+
+
+def _nan_vertex_box(tmp_path) -> trimesh.Trimesh:
+    """The box written to .obj with one NaN corner, loaded like a user would: trimesh drops it and leaves a hole."""
+    verts = np.asarray(BOX.vertices).copy()
+    verts[0] = np.nan  # the corner (-0.25, -0.25, -0.25)
+    path = tmp_path / "nan_corner.obj"
+    lines = [f"v {a} {b} {c}" for a, b, c in verts] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in BOX.faces]
+    path.write_text("\n".join(lines) + "\n")
+    mesh = trimesh.load(path, force="mesh")
+    assert not mesh.is_watertight and np.isfinite(mesh.vertices).all()
+    return mesh
+
+
+def test_open_surfaces_are_pressed_like_closed_ones(sim: EIPSimulator, tmp_path) -> None:
+    """Issue 14 case 1: an open box, a single plane and a .obj with a NaN vertex (a hole) gave contact=False."""
+    closed = sim.press(BOX, [0.0, 0.0, 0.25], DOWN, depth=1.0)
+    assert closed.contact
+    open_box = trimesh.Trimesh(BOX.vertices, BOX.faces[:10], process=False)  # the +x face removed
+    plane = trimesh.Trimesh(BOX.vertices[[1, 3, 5, 7]] * [1, 1, 0], [[0, 2, 3], [0, 3, 1]], process=False)
+    assert not open_box.is_watertight and not plane.is_watertight
+    cases = [
+        (open_box, [0.0, 0.0, 0.25], DOWN),
+        (open_box, [0.0, -0.25, 0.0], [0.0, 1.0, 0.0]),  # a side next to the opening
+        (plane, [0.0, 0.0, 0.0], DOWN),
+        (plane, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),  # a plane has two sides
+        (_nan_vertex_box(tmp_path), [0.1, 0.1, 0.25], DOWN),  # the top face away from the hole
+    ]
+    for mesh, pos, d in cases:
+        r = sim.press(mesh, pos, d, depth=1.0)
+        assert r.contact and r.depth == pytest.approx(1.0, abs=0.1), (pos, d)
+        # a flat face of an open mesh reads like the same face of the closed box
+        torch.testing.assert_close(r.image, closed.image, atol=1e-3, rtol=0.0)
+
+
+def test_pressing_a_face_with_a_hole_reads_the_hole(sim: EIPSimulator, tmp_path) -> None:
+    """The NaN corner's triangles are gone: the bottom face pressed at its centre is a half-square, not a miss."""
+    r = sim.press(_nan_vertex_box(tmp_path), [0.0, 0.0, -0.25], [0.0, 0.0, 1.0], depth=1.0)
+    assert r.contact
+    z = r.image[2]
+    assert float(z.max()) > 0.5 and float(z.min()) < 0.5 * float(z.max())  # part of the pad is over the hole
+
+
+def test_passing_through_an_unresolved_surface_warns(sim: EIPSimulator) -> None:
+    """A sliver narrower than a cell between the node rows: the rays see it, the grid does not. Not a clean miss."""
+    dx = 1.0 / 40
+    y0, y1 = 0.15 * dx, 0.35 * dx  # between the node rows y = 0 and y = dx, under pad particles (y = 0.25 dx)
+    verts = [[-dx, y0, 0.0], [dx, y0, 0.0], [dx, y1, 0.0], [-dx, y1, 0.0]]
+    sliver = trimesh.Trimesh(verts, [[0, 1, 2], [0, 2, 3]], process=False)
+    with pytest.warns(RuntimeWarning, match="without touching it.*Raise n_grid or lower domain_size"):
+        r = sim.press(sliver, [0.0, 0.0, 0.0], DOWN, max_depth=2.0)
+    assert not r.contact
+
+
+def _slotted_block() -> trimesh.Trimesh:
+    """Two pillars with a slot between them above a base: the centre line meets the base 0.6 below the pillar tops."""
+
+    def block(lo: list[float], hi: list[float]) -> trimesh.Trimesh:
+        b = trimesh.creation.box(extents=np.subtract(hi, lo))
+        b.apply_translation(np.add(lo, hi) / 2)
+        return b
+
+    pillars = [block([-0.3, -0.3, 0.0], [-0.02, 0.3, 0.5]), block([0.02, -0.3, 0.0], [0.3, 0.3, 0.5])]
+    return trimesh.util.concatenate([*pillars, block([-0.3, -0.3, -0.5], [0.3, 0.3, -0.1])])
+
+
+def test_touch_position_starts_the_pad_clear_of_a_rising_surface() -> None:
+    """Issue 14 case 6: the default placement put the touch on the first hit of the centre line (the base, down the
+    slot); the pillars rising under the footprint put the pad inside the object."""
+    sim = EIPSimulator(SensorConfig(resolution=(8, 8), layers=2), PressConfig(n_grid=32))
+    slot = _slotted_block()
+    with pytest.raises(ValueError, match="start inside the object.*leave the position out"):
+        sim.press(slot, [0.0, 0.0, -0.1], DOWN, max_steps=1)  # the old default: the centre line's first hit
+    pos = sim.touch_position(slot, DOWN)
+    torch.testing.assert_close(pos, torch.tensor([0.0, 0.0, 0.5]), atol=1e-6, rtol=0.0)  # on the pillar tops
+    r = sim.press(slot, None, DOWN, depth=1.0)
+    assert r.contact and r.depth == pytest.approx(1.0, abs=0.1)
+    # sideways, the footprint meets the near pillar's face first
+    side = sim.touch_position(slot, [-1.0, 0.0, 0.0])
+    assert float(side[0]) == pytest.approx(0.3, abs=1e-6)
+
+
+def test_touch_position_moves_off_a_hole_and_refuses_an_edge_on_plane(sim: EIPSimulator) -> None:
+    ring = trimesh.creation.annulus(r_min=0.3, r_max=0.4, height=0.1)  # the pad at the centre sees only the hole
+    pos = sim.touch_position(ring, DOWN)
+    assert 0.29 < float(pos[:2].norm()) < 0.41 and float(pos[2]) == pytest.approx(0.05, abs=1e-6)
+    plane = trimesh.Trimesh([[-0.3, -0.3, 0.0], [0.3, -0.3, 0.0], [0.3, 0.3, 0.0]], [[0, 1, 2]])
+    with pytest.raises(ValueError, match="no ray along the direction .* meets the mesh.*choose a direction"):
+        sim.touch_position(plane, [1.0, 0.0, 0.0])

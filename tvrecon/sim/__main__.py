@@ -76,24 +76,6 @@ def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh | trimesh.Scene:
         ) from err
 
 
-def default_position(mesh: trimesh.Trimesh, direction: np.ndarray) -> np.ndarray:
-    """Where a press along ``direction`` through the object's centre first meets the surface.
-
-    When that ray misses (e.g. the hole of a torus) the most exposed vertex nearest the central axis is used.
-    """
-    d = direction / np.linalg.norm(direction)
-    centre = mesh.bounds.mean(0)
-    start = centre - d * 10.0
-    locs, _, _ = mesh.ray.intersects_location(start[None], d[None], multiple_hits=False)
-    if len(locs):
-        return locs[0]
-    h = mesh.vertices @ -d
-    top = mesh.vertices[h >= h.max() - 1e-3 * np.ptp(h)]
-    rel = top - centre
-    radial = np.linalg.norm(rel - (rel @ d)[:, None] * d, axis=1)
-    return top[np.argmin(radial)]
-
-
 def save_reading_npz(reading: TactileReading, path: str | Path) -> Path:
     """Every field of a reading in one .npz (atomic)."""
     arrays = {}
@@ -154,7 +136,7 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     direction = np.asarray(args.direction, dtype=np.float64)
     if not np.isfinite(direction).all() or np.linalg.norm(direction) < 1e-8:
         raise ValueError(f"--direction must be a non-zero vector, got {args.direction}")
-    position = np.asarray(args.position, dtype=np.float64) if args.position else default_position(mesh, direction)
+    position = np.asarray(args.position, dtype=np.float64) if args.position else None
     sensor = SensorConfig(
         resolution=(args.resolution, args.resolution),
         layers=args.layers,
@@ -167,7 +149,11 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
         n_grid=args.n_grid, depth=args.depth, force=args.force, record_every=1, progress=True, release_steps=0
     )
     sim = EIPSimulator(sensor, press)
+    # without --position: the first surface the pad meets along --direction, its footprint clear of the object
     reading = sim.press(mesh, position, direction)
+    if position is None:
+        assert reading.origin is not None
+        print(f"touch position (no --position given): {np.round(reading.origin.numpy(), 4).tolist()}")
     files: dict[str, Path] = {}
     files["tactile"] = save_tactile_png(
         reading.image,
@@ -258,7 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shape", default="torus", help=f"one of {BUILTIN_SHAPES} or a mesh file path")
     p.add_argument("--seed", type=int, default=0, help="instance seed of a library shape")
     p.add_argument("--direction", type=float, nargs=3, default=[0.0, 0.0, -1.0], help="press direction (into object)")
-    p.add_argument("--position", type=float, nargs=3, default=None, help="touch point (default: first hit)")
+    p.add_argument(
+        "--position", type=float, nargs=3, default=None, help="touch point (default: the first surface the pad meets)"
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--E", type=float, default=3.0, help="Young's modulus")
     p.add_argument("--nu", type=float, default=0.25, help="Poisson ratio")

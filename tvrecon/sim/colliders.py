@@ -15,7 +15,21 @@ import trimesh
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-__all__ = ["Collider", "SphereCollider", "PlaneCollider", "MeshCollider", "clip_to_box", "collide_grid"]
+__all__ = [
+    "Collider",
+    "SphereCollider",
+    "PlaneCollider",
+    "MeshCollider",
+    "OPEN_SHELL_CELLS",
+    "clip_to_box",
+    "collide_grid",
+]
+
+#: Half-thickness, in grid cells, of the shell an open (non-watertight) mesh is given by ``MeshCollider`` without
+#: ``from_above``: its carved solid is grown by this much, so a zero-thickness wall becomes a plate 2 cells thick.
+#: One cell is the least that always holds a connected layer of grid nodes whatever the wall's tilt (a slab thinner
+#: than sqrt(3) cells can fall between the nodes along a diagonal) and keeps the walls as thin as the grid resolves.
+OPEN_SHELL_CELLS = 1.0
 
 
 @runtime_checkable
@@ -202,12 +216,39 @@ def clip_to_box(mesh: trimesh.Trimesh, lo: np.ndarray, hi: np.ndarray) -> trimes
     return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
 
 
+def _below_first_hit(mesh: trimesh.Trimesh, nodes: np.ndarray, dims: np.ndarray, top: float) -> np.ndarray:
+    """(N,) bool: nodes on or below the first surface met by a ray cast down (-z) from height ``top`` through them.
+
+    One ray per node column; ``nodes`` is the (X * Y * Z, 3) lattice in C order (z fastest), shaped by ``dims``.
+    """
+    X, Y, Z = (int(d) for d in dims)
+    cols = nodes.reshape(X, Y, Z, 3)[:, :, 0, :2].reshape(-1, 2)  # (X * Y, 2)
+    origins = np.concatenate([cols, np.full((len(cols), 1), top)], axis=1)
+    dirs = np.tile(np.array([0.0, 0.0, -1.0]), (len(cols), 1))
+    locs, ray_idx, _ = mesh.ray.intersects_location(origins, dirs, multiple_hits=False)
+    hit = np.full(len(cols), -np.inf)  # a column that misses the mesh is empty
+    if len(ray_idx):
+        np.maximum.at(hit, ray_idx, locs[:, 2])
+    z = nodes[:, 2].reshape(X * Y, Z)
+    return (z <= hit[:, None]).reshape(-1)
+
+
 class MeshCollider:
     """Rigid mesh as a signed distance field sampled on the lattice nodes of a region, looked up trilinearly.
 
-    Sign: ``mesh.contains`` (ray parity, embree) for watertight meshes; voxel carving from depth maps
-    (``voxelize.carve_points``) for open meshes, whose zero-thickness walls additionally count as solid within half a
-    cell so that a pad cannot slip through them. Unsigned distance: nearest of surface samples (spacing dx/2,
+    Sign: ``mesh.contains`` (ray parity, embree) for watertight meshes. An open mesh (an open box, a single plane, a
+    mesh with a hole) has no inside, and a zero-thickness wall has no grid node inside it; it is made solid in one of
+    two ways:
+
+    - ``from_above=True`` (the press: bodies come from +z): solid is what lies behind the first surface seen from
+      above, in a depth map of one ray per node column cast down from the region's top (a sheet is as thick as the
+      region is deep, and the holes of a mesh stay holes). This is the carving of ``voxelize.carve_points`` with the
+      one view the pad has; a closed mesh gives the same solid, so open and closed meshes press alike.
+    - otherwise: voxel carving from depth maps over ``n_views`` directions (``voxelize.carve_points``), grown by
+      ``OPEN_SHELL_CELLS`` (sdf minus ``offset``), so a wall seen from both sides becomes a shell 2 cells thick with
+      grid nodes inside it (a body coming from either side is stopped while it stays within the shell).
+
+    Unsigned distance: nearest of surface samples (spacing dx/2,
     on the surface clipped to the region box grown by the 4-cell distance cap; scipy cKDTree), refined
     to the exact distance to the faces of the 4 nearest samples. Normal: central-difference gradient of the node sdf.
 
@@ -216,7 +257,13 @@ class MeshCollider:
         n_grid: cells across the unit domain (node spacing dx = 1 / n_grid).
         region: (lo (3,), hi (3,)) domain-coordinate box whose lattice nodes get the sdf; None = mesh bounds + 3 cells.
         device: device of the node tables (sdf/normal follow the query points' device and dtype).
-        n_views: carving views for open meshes.
+        n_views: carving views for open meshes (without ``from_above``).
+        from_above: open meshes are solid behind their first surface seen from +z (see above); no effect on
+            watertight meshes.
+
+    Attributes:
+        offset: how far (domain units) the collider's surface lies outside the mesh's surface: ``OPEN_SHELL_CELLS *
+            dx`` for an open mesh without ``from_above``, else 0.
 
     Points outside the region get the sdf of the nearest region point plus their distance to the region box.
     """
@@ -228,6 +275,7 @@ class MeshCollider:
         region: tuple[Sequence[float], Sequence[float]] | None = None,
         device: str | torch.device = "cpu",
         n_views: int = 26,
+        from_above: bool = False,
     ) -> None:
         from tvrecon.geometry import check_mesh
 
@@ -271,11 +319,17 @@ class MeshCollider:
             q = np.repeat(nodes[close], 4, axis=0)
             exact = np.linalg.norm(trimesh.triangles.closest_point(tris, q) - q, axis=1).reshape(-1, 4)
             dist[close] = np.minimum(np.where(ok, exact, np.inf).min(1), margin)
+        self.offset = 0.0
         if mesh.is_watertight:
-            inside = mesh.contains(nodes)
+            sdf = np.where(mesh.contains(nodes), -dist, dist)
+        elif from_above:
+            sdf = np.where(_below_first_hit(mesh, nodes, dims, top=hi_i[2] * dx + margin), -dist, dist)
         else:
-            inside = carve_points(mesh, nodes, pixel=0.5 * dx, n_views=n_views, tol=0.5 * dx) | (dist < 0.5 * dx)
-        sdf = np.where(inside, -dist, dist).reshape(tuple(dims))
+            # a wall seen from both sides is carved away and would be solid nowhere: grow the carved solid
+            self.offset = OPEN_SHELL_CELLS * dx
+            inside = carve_points(mesh, nodes, pixel=0.5 * dx, n_views=n_views, tol=0.5 * dx)
+            sdf = np.where(inside, -dist, dist) - self.offset
+        sdf = sdf.reshape(tuple(dims))
         grad = np.stack(np.gradient(sdf, dx), -1)  # (X, Y, Z, 3)
         gn = np.linalg.norm(grad, axis=-1, keepdims=True)
         grad = np.where(gn > 1e-12, grad / np.maximum(gn, 1e-12), np.array([0.0, 0.0, 1.0]))

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -359,7 +360,10 @@ class EIPSimulator:
         travel = float(p.gap) + float(p.max_depth)
         lo = np.array([0.5 - (hx + 3) * dx, 0.5 - (hy + 3) * dx, zt - (travel - float(p.gap) + 3) * dx])
         hi = np.array([0.5 + (hx + 3) * dx, 0.5 + (hy + 3) * dx, zt + (float(p.gap) + 2) * dx])
-        collider = _colliders.MeshCollider(mdom, n_grid=int(p.n_grid), region=(lo, hi), device=self.device)
+        # open meshes (walls of zero thickness) are solid behind the first surface the pad meets
+        collider = _colliders.MeshCollider(
+            mdom, n_grid=int(p.n_grid), region=(lo, hi), device=self.device, from_above=True
+        )
         x_rest = pad_lattice(s, device=self.device) * dx + torch.tensor(
             [0.5, 0.5, zt + float(p.gap) * dx], device=self.device
         )
@@ -367,23 +371,102 @@ class EIPSimulator:
         if inside:
             raise ValueError(
                 f"the pad would start inside the object ({inside} particles): `direction` {d.tolist()} must point "
-                f"into the object from the outside at `position` {pos.tolist()} (e.g. minus the surface normal)"
+                f"into the object from the outside at `position` {pos.tolist()} (e.g. minus the surface normal), or "
+                "leave the position out (None; the CLI without --position) to let the simulator place the pad"
             )
         return _Touch(R=R, origin=origin, direction=d, collider=collider, reachable=True)
 
     # ------------------------------------------------------------------ public API
+    def touch_position(self, mesh: trimesh.Trimesh, direction, **overrides) -> Tensor:
+        """A touch point the pad reaches from outside along ``direction``: the placement when none is given.
+
+        The pad's footprint (its contact-layer particles, in the press frame) is centred on the line along
+        ``direction`` through the centre of the mesh's bounding box. A ray along ``direction`` from outside the
+        bounding box through each footprint particle meets the object's first surface; the touch
+        point is on the centre line at the highest of these hits (the first point the pad will touch), so the pad
+        starts clear of the object however much the surface rises under it. When every ray misses (e.g. the hole
+        of a torus), the footprint moves so that its most central particle is over the hit nearest the centre line
+        among rays cast over the whole bounding box. (The data pipeline samples its own touches, see
+        ``tvrecon.data.touches``.)
+
+        Args:
+            mesh: object in world coordinates. direction: (3,) world press direction (into the object).
+            **overrides: :class:`SensorConfig` / :class:`PressConfig` fields, as for :meth:`press` (the footprint
+                follows the pad's resolution, spacing, ``n_grid`` and ``domain_size``).
+        Returns:
+            (3,) float32 world point to pass as ``position``.
+        Raises:
+            ValueError: no ray along ``direction`` meets the mesh (e.g. a flat plane pressed along itself).
+        """
+        s, p = self._configs(overrides)
+        check_mesh(mesh)
+        R = sensor_frame(_as_vec3(direction, "direction")).double().numpy()
+        S, dx = float(p.domain_size), 1.0 / int(p.n_grid)
+        centre = np.asarray(mesh.bounds, dtype=np.float64).mean(0)
+        local = (np.asarray(mesh.vertices, dtype=np.float64) - centre) @ R / S  # press frame, domain units
+        mloc = trimesh.Trimesh(vertices=local, faces=np.asarray(mesh.faces), process=False)
+        top = float(local[:, 2].max()) + dx  # outside the bounding box, on the pad's side
+        lat = pad_lattice(s)[: s.resolution[0] * s.resolution[1], :2].double().numpy() * dx
+        foot = lat  # (HW, 2) the contact particles' columns: the rays `_setup` casts from the touch point
+
+        def first_hits(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """(K, 2) ray columns -> (K,) height of the first surface met from above (-inf: miss), hit points."""
+            origins = np.concatenate([xy, np.full((len(xy), 1), top)], axis=1)
+            dirs = np.tile(np.array([0.0, 0.0, -1.0]), (len(xy), 1))
+            locs, idx, _ = mloc.ray.intersects_location(origins, dirs, multiple_hits=False)
+            z = np.full(len(xy), -np.inf)
+            if len(idx):
+                np.maximum.at(z, idx, locs[:, 2])
+            return z, locs
+
+        cxy = np.zeros(2)
+        z, _ = first_hits(foot)
+        if not np.isfinite(z).any():  # the footprint sees only a hole: move it to the hit nearest the centre line
+            lo, hi = local[:, :2].min(0), local[:, :2].max(0)
+            n = np.clip(np.ceil((hi - lo) / (float(s.spacing) * dx)).astype(int) + 1, 2, 96)
+            gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], n[0]), np.linspace(lo[1], hi[1], n[1]), indexing="ij")
+            _, locs = first_hits(np.stack([gx.ravel(), gy.ravel()], 1))
+            if len(locs) == 0:
+                raise ValueError(
+                    f"no ray along the direction {np.asarray(direction, dtype=float).tolist()} meets the mesh (it is "
+                    "seen edge-on or is thinner than the pad's particle spacing along it, e.g. a flat plane pressed "
+                    "along itself): choose a direction that points into the "
+                    "object's surface, or give a position"
+                )
+            # the contact particle nearest the pad's centre goes over that hit
+            cxy = locs[np.argmin(np.linalg.norm(locs[:, :2], axis=1)), :2] - lat[np.argmin(np.linalg.norm(lat, axis=1))]
+            z, _ = first_hits(foot + cxy)
+            if not np.isfinite(z).any():
+                z = np.array([float(locs[:, 2].max())])
+        touch = np.array([cxy[0], cxy[1], float(z.max())])
+        return torch.as_tensor(centre + R @ touch * S, dtype=torch.float32)
+
     def press(self, mesh: trimesh.Trimesh, position, direction, **overrides) -> TactileReading:
         """Press the pad onto ``mesh`` at ``position`` along ``direction``.
 
         Args:
-            mesh: object in world coordinates (watertight is best; the collider is a signed distance).
-            position: (3,) world point on or near the surface.
+            mesh: object in world coordinates. Watertight, or open (an open box, a plane, a mesh with holes):
+                an open mesh is solid behind the first surface the pad meets (``MeshCollider(from_above=True)``).
+                A touch that travels past the surface found under the pad without feeling it (a part thinner
+                than the grid resolves) warns (RuntimeWarning) instead of returning a silent miss.
+            position: (3,) world point on or near the surface; None -> :meth:`touch_position` finds one.
             direction: (3,) world press direction, pointing into the object (any non-zero length).
             **overrides: any :class:`SensorConfig` or :class:`PressConfig` field for this call (E and nu may be
                 0-dim tensors requiring grad, ``speed`` too: the image is differentiable w.r.t. them).
         Returns:
             the :class:`TactileReading`.
         """
+        if position is None:
+            position = self.touch_position(mesh, direction, **overrides)
+            reading = self.press_batch([mesh], [position], [direction], **overrides)[0]
+            if reading.steps == 0:  # the pad's rays met nothing at the touch point found for it
+                raise ValueError(
+                    f"the pad finds no surface under its footprint along the direction "
+                    f"{np.asarray(direction, dtype=float).tolist()}: the object is thinner than the pad's particle "
+                    "spacing seen along it (e.g. a sheet pressed on its edge). Choose another direction, give a "
+                    "position, or raise n_grid"
+                )
+            return reading
         return self.press_batch([mesh], [position], [direction], **overrides)[0]
 
     def press_batch(
@@ -524,6 +607,7 @@ class EIPSimulator:
                         tc.reading.force_field = (
                             column_force_field(particle_force[b], (H, W), int(s.layers)).float().cpu()
                         )
+                        _warn_if_passed_through(tc, p)
                         if p.record_every and tc.steps % int(p.record_every) != 0:
                             self._record(tc, xb[b], x0_contact, dx, s, p)
                         if tc.release_left > 0:
@@ -613,6 +697,23 @@ class EIPSimulator:
             tc.reading.frames = torch.stack(tc.frames)
             tc.reading.frame_steps = list(tc.frame_steps)
             tc.reading.particles = torch.stack(tc.particles)
+
+
+def _warn_if_passed_through(tc: _Touch, p: PressConfig) -> None:
+    """Warn when the pad went a cell or more past the surface found under its footprint without feeling it.
+
+    The rays of ``_setup`` saw the object under the pad, so a press without contact means the grid did not resolve
+    what the rays hit (a feature thinner than a cell between the nodes): not a clean miss.
+    """
+    past = tc.travel - float(p.gap)
+    if tc.reachable and not tc.contact and past >= 1.0 - 1e-6:
+        warnings.warn(
+            f"the pad went {past:.2f} cells past the object's surface under its footprint (touch point "
+            f"{[round(v, 4) for v in tc.origin.tolist()]}) without touching it: the object is thinner there than the "
+            f"grid resolves. Raise n_grid or lower domain_size so the part spans several cells, or press elsewhere",
+            RuntimeWarning,
+            stacklevel=4,
+        )
 
 
 def _select_blocks(state: ParticleState, keep: list[int], P: int) -> ParticleState:
