@@ -307,3 +307,10 @@ def test_make_touch_policy_and_cache_spec(torus: trimesh.Trimesh) -> None:
         make_touch_policy({"_target_": "tvrecon.data.touches.NoSuchPolicy"})
     with pytest.raises(ValueError, match="is not a TouchPolicy dataclass"):
         make_touch_policy({"_target_": "tvrecon.data.touches.Touches"})
+
+
+def test_pad_placement_helpers_live_with_the_simulator_placement() -> None:
+    """pad_footprint / pad_reachable moved to tvrecon.sim.placement (one clearance for the rays and the sampler)."""
+    from tvrecon.sim import placement
+
+    assert pad_footprint is placement.pad_footprint and pad_reachable is placement.pad_reachable

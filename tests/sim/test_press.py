@@ -357,3 +357,45 @@ def test_touch_position_moves_off_a_hole_and_refuses_an_edge_on_plane(sim: EIPSi
     plane = trimesh.Trimesh([[-0.3, -0.3, 0.0], [0.3, -0.3, 0.0], [0.3, 0.3, 0.0]], [[0, 1, 2]])
     with pytest.raises(ValueError, match="no ray along the direction .* meets the mesh.*choose a direction"):
         sim.touch_position(plane, [1.0, 0.0, 0.0])
+
+
+# Golden default press: PressConfig defaults but n_grid=64 (about 1 s), default SensorConfig (64x64 pad), the default
+# stop rule (terminal chamfer threshold 0.05), an icosphere of radius 0.3 pressed from the top. Produced once with
+# this repository's simulator; the tactile images of the data pipeline come from exactly this code path.
+GOLDEN_STEPS = 59
+GOLDEN_IMAGE_MEAN = [-2.5871675461530685e-05, -7.580965757369995e-07, 0.05313700623810291]  # (x, y, z) channels
+GOLDEN_IMAGE_STD = [0.02366251465920265, 0.022965431535446338, 0.156607022216386]
+GOLDEN_IMAGE_ZMAX = 0.7257711887359619
+CACHE_BUMP = (
+    "the default press's tactile image changed: changing this means bumping the data cache version "
+    "(CACHE_VERSION in tvrecon/data/cache.py), or cached datasets keep the old images under the same keys"
+)
+
+
+def test_golden_default_press_image_moments() -> None:
+    sim = EIPSimulator(press=PressConfig(n_grid=64))
+    r = sim.press(SPHERE, TOP, DOWN)
+    img = r.image.double()
+    assert r.contact and r.steps == GOLDEN_STEPS, f"{CACHE_BUMP} (steps {r.steps} != {GOLDEN_STEPS})"
+    mean, std = img.mean((1, 2)), img.std((1, 2))
+    assert torch.allclose(mean, torch.tensor(GOLDEN_IMAGE_MEAN, dtype=torch.float64), rtol=1e-4, atol=1e-6), (
+        f"{CACHE_BUMP} (channel means {mean.tolist()})"
+    )
+    assert torch.allclose(std, torch.tensor(GOLDEN_IMAGE_STD, dtype=torch.float64), rtol=1e-4), (
+        f"{CACHE_BUMP} (channel stds {std.tolist()})"
+    )
+    assert float(img[2].max()) == pytest.approx(GOLDEN_IMAGE_ZMAX, rel=1e-4), f"{CACHE_BUMP} (max normal)"
+
+
+def test_stop_rules_are_an_ordered_list_and_depth_raises_max_depth_explicitly() -> None:
+    from tvrecon.sim.stop_rules import DepthRule, ForceRule, ThresholdRule, TravelLimit, stop_rules, travel_for_depth
+
+    kinds = lambda p: [type(r) for r in stop_rules(p, 10)]  # noqa: E731
+    assert kinds(PressConfig(depth=2.0, force=1.0)) == [TravelLimit, DepthRule]  # depth > force > threshold
+    assert kinds(PressConfig(force=1.0)) == [TravelLimit, ForceRule]
+    assert kinds(PressConfig()) == [TravelLimit, ThresholdRule]
+    assert kinds(PressConfig(threshold=None)) == [TravelLimit]
+    p = PressConfig(depth=5.0, max_depth=4.0)
+    assert travel_for_depth(p).max_depth == 5.5 and p.max_depth == 4.0  # a copy, raised by the margin
+    assert travel_for_depth(PressConfig(depth=1.0)).max_depth == 4.0
+    assert EIPSimulator()._configs({"depth": 5.0})[1].max_depth == 5.5

@@ -29,6 +29,7 @@ from tqdm.auto import tqdm
 from tvrecon.config_utils import coerce_config
 from tvrecon.data.render import Camera, ray_intersector
 from tvrecon.geometry import check_mesh, perpendicular_basis, world_to_camera
+from tvrecon.sim.placement import pad_footprint, pad_reachable  # the pad's placement, importable from here too
 
 if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
     from tvrecon.sim.press import EIPSimulator, TactileReading
@@ -316,54 +317,6 @@ def visible_points(mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarra
     first_hit[ray] = np.linalg.norm(loc - center, axis=1)
     visible[test] = first_hit >= dist[test] - tol  # nothing strictly in front of the point
     return visible
-
-
-def pad_footprint(sim: EIPSimulator) -> tuple[float, float]:
-    """The simulator pad's footprint in world units: (width, clearance).
-
-    width: diagonal of the contact layer (covers the pad whatever its rotation about the press axis);
-    clearance: how far behind the contact point the simulator starts looking for the object (pad thickness +
-    start gap + 6 cells, as in `EIPSimulator` set-up), i.e. the space the pad needs free in front of the surface.
-    """
-    s, p = sim.sensor, sim.cfg
-    cell = float(p.domain_size) / int(p.n_grid)  # world units per grid cell
-    hx, hy = s.half_extent
-    width = 2.0 * float(np.hypot(hx, hy)) * cell
-    clearance = (float(s.thickness) + float(p.gap) + 6.0) * cell
-    return width, clearance
-
-
-def pad_reachable(
-    mesh: trimesh.Trimesh, positions: np.ndarray, directions: np.ndarray, width: float, clearance: float, k: int = 7
-) -> np.ndarray:
-    """Whether a flat pad of diagonal `width` can approach each touch: its footprint disc, lifted `clearance`
-    and 2 `clearance` behind the contact point against the press direction, lies outside the object (not in a
-    groove, a hole or a concave pocket narrower than the pad).
-
-    Args:
-        mesh: the object (watertight: inside/outside by ray parity).
-        positions: (N, 3) contact points. directions: (N, 3) unit press directions (into the object).
-        width: footprint diameter, world units. clearance: lift, world units.
-        k: footprint samples per side (k x k grid clipped to the disc).
-
-    Returns:
-        (N,) bool.
-    """
-    positions = np.asarray(positions, dtype=np.float64)
-    d = np.asarray(directions, dtype=np.float64)
-    if len(positions) == 0:
-        return np.zeros(0, dtype=bool)
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    e1, e2 = perpendicular_basis(d)
-    g = np.linspace(-0.5, 0.5, k) * width
-    gx, gy = np.meshgrid(g, g)
-    disc = np.hypot(gx, gy) <= 0.5 * width + 1e-12
-    gx, gy = gx[disc], gy[disc]  # (S,)
-    disc_pts = positions[:, None] + gx[None, :, None] * e1[:, None] + gy[None, :, None] * e2[:, None]  # (N, S, 3)
-    # two layers: where the simulator starts its rays, and where the pad itself may end up above them
-    pts = np.concatenate([disc_pts - lift * clearance * d[:, None] for lift in (1.0, 2.0)], axis=1)  # (N, 2S, 3)
-    inside = mesh.contains(pts.reshape(-1, 3)).reshape(len(positions), -1)
-    return ~inside.any(axis=1)
 
 
 def sample_touches(

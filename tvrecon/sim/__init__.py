@@ -6,7 +6,10 @@ Public names::
     SphereCollider, PlaneCollider, MeshCollider          # rigid colliders (colliders.py)
     SensorConfig, sensor_frame                           # the pad (sensor.py)
     PressConfig, TactileReading, EIPSimulator            # the press protocol, Algorithm 1 (press.py)
-    terminal_chamfer                                     # its terminal check, paper eq. 12 (press.py)
+    terminal_chamfer                                     # its terminal check, paper eq. 12 (stop_rules.py)
+
+The press protocol by concept: ``placement`` (where the pad goes), ``stop_rules`` (when it stops), ``press_run``
+(the solver loop, each touch approach -> press -> release -> done); ``press`` ties them together.
     ContactPatch, contact_patch, reading_patch           # a touch mapped back to 3D world points (contact.py)
 
 Sensor outputs beyond displacement live in their own modules: ``forces`` (per-taxel force field, also on every

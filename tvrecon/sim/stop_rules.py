@@ -1,0 +1,193 @@
+"""When a press stops: the terminal check of Algorithm 1 and the other stop rules, as an ordered list.
+
+After every press step the rules of :func:`stop_rules` are asked in order; the first that answers True ends the
+press (later rules are not evaluated: the terminal chamfer is the costly one)::
+
+    1. TravelLimit     always: the hand travelled gap + max_depth cells, or max_steps steps
+    2. DepthRule       ``depth``: indentation past first contact, cells              \\
+       ForceRule       ``force``: mean normal contact force over the last 3 steps     > only the first one configured
+       ThresholdRule   ``threshold``: terminal chamfer (paper eq. 12), after contact  /  is in the list
+
+A ``depth`` rule needs travel: :func:`travel_for_depth` raises ``max_depth`` to ``depth + 0.5`` cells when it is
+shorter, so the travel limit does not stop the press before the requested depth (the placement's collider region
+and reach follow the raised value).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+if TYPE_CHECKING:
+    from tvrecon.sim.press import PressConfig
+
+#: Default terminal threshold, in squared grid cells per contact-layer particle (see :func:`terminal_chamfer`).
+DEFAULT_THRESHOLD = 0.05
+
+#: Travel (cells) a ``depth`` rule gets beyond the requested depth when it raises ``max_depth``.
+DEPTH_TRAVEL_MARGIN = 0.5
+
+#: Tolerance (cells) of the travel and depth comparisons (the travel is a sum of float steps).
+_EPS_CELLS = 1e-6
+
+
+def terminal_chamfer(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | None = None) -> float:
+    """Terminal check of Algorithm 1, paper eq. 12 (eq:chamfer): the centred contact layer now vs at rest.
+
+    ``l = mean_p min_q |x^_p - x^0_q|^2 + mean_q min_p |x^_p - x^0_q|^2`` with ``x^ = x - mean(x)``; the paper sums,
+    we average (divide by |S|) so the threshold does not depend on the tactile resolution. Not differentiable
+    (it only drives the terminal check).
+
+    Args:
+        x: (N, 3) contact layer now, in cells. x0: (N, 3) at rest, in cells.
+        lattice: (H, W, spacing) when ``x0`` is the planar rest lattice of :func:`pad_lattice` (z constant); the
+            first term is then exact by rounding to the lattice instead of a k-d tree query.
+    Returns:
+        the chamfer value in squared cells.
+    """
+    a_t = (x - x.mean(0)).detach()
+    b = (x0 - x0.mean(0)).detach().cpu().double().numpy()
+    a = a_t.cpu().double().numpy()
+    if lattice is not None:
+        H, W, sp = lattice
+        j = np.clip(np.rint(a[:, 0] / sp + (W - 1) / 2), 0, W - 1)
+        i = np.clip(np.rint(a[:, 1] / sp + (H - 1) / 2), 0, H - 1)
+        d_ab2 = (a[:, 0] - (j - (W - 1) / 2) * sp) ** 2 + (a[:, 1] - (i - (H - 1) / 2) * sp) ** 2 + a[:, 2] ** 2
+    else:
+        d_ab, _ = cKDTree(b).query(a, workers=1)
+        d_ab2 = d_ab**2
+    d_ba, _ = cKDTree(a).query(b, workers=1)
+    return float(d_ab2.mean() + (d_ba**2).mean())
+
+
+#: Deprecated alias of :func:`terminal_chamfer` (same object; the paper numbers the equation 12, not 13).
+chamfer_eq13 = terminal_chamfer
+
+
+def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], threshold: float) -> bool:
+    """Whether ``terminal_chamfer(x, x0, lattice) >= threshold``, usually without a k-d tree.
+
+    The second chamfer term (rest lattice -> nearest particle) is at most the mean squared distance of each rest
+    point to *its own* particle (same index, both centred), so when the exact first term plus that bound stays
+    below the threshold the answer is False; only otherwise is the exact value computed. Same result as comparing
+    :func:`terminal_chamfer`, at a fraction of the cost per step.
+
+    Args:
+        x: (N, 3) contact layer now, in cells. x0: (N, 3) planar rest lattice, in cells.
+        lattice: (H, W, spacing) of ``x0``. threshold: squared cells per particle.
+    """
+    a = (x - x.mean(0)).detach()
+    b = (x0 - x0.mean(0)).detach().to(a)
+    H, W, sp = lattice
+    j = torch.clamp(torch.round(a[:, 0] / sp + (W - 1) / 2), 0, W - 1)
+    i = torch.clamp(torch.round(a[:, 1] / sp + (H - 1) / 2), 0, H - 1)
+    d_ab2 = (a[:, 0] - (j - (W - 1) / 2) * sp) ** 2 + (a[:, 1] - (i - (H - 1) / 2) * sp) ** 2 + a[:, 2] ** 2
+    upper = float(d_ab2.mean() + ((a - b) ** 2).sum(1).mean())
+    if upper < float(threshold) * (1.0 - 1e-6):
+        return False
+    return terminal_chamfer(x, x0, lattice) >= float(threshold)
+
+
+def travel_for_depth(p: PressConfig) -> PressConfig:
+    """``p`` with ``max_depth`` raised to ``depth + DEPTH_TRAVEL_MARGIN`` when a ``depth`` rule needs more travel.
+
+    Without it a ``depth`` above ``max_depth`` could never be reached (the travel limit stops first). The raised
+    value also sizes the collider region and the reach of the placement. ``p`` itself is not changed.
+    """
+    if p.depth is not None and float(p.depth) + DEPTH_TRAVEL_MARGIN > float(p.max_depth):
+        return dataclasses.replace(p, max_depth=float(p.depth) + DEPTH_TRAVEL_MARGIN)
+    return p
+
+
+class PressState(Protocol):
+    """What the rules read of a touch being pressed (:class:`tvrecon.sim.press_run.TouchRun`)."""
+
+    steps: int
+    travel: float
+    contact: bool
+    force_hist: list[float]
+
+
+@dataclass(frozen=True)
+class StopCheck:
+    """The contact layer after a step, for rules that look at the pad (cells; ``lattice`` = (H, W, spacing))."""
+
+    contact_cells: Tensor
+    rest_cells: Tensor
+    lattice: tuple[int, int, float]
+
+
+class StopRule(Protocol):
+    """One stop rule: ``reached(state, check)`` is True when the press should stop after this step."""
+
+    def reached(self, state: PressState, check: StopCheck) -> bool: ...
+
+
+@dataclass(frozen=True)
+class TravelLimit:
+    """The hand never travels more than ``gap + max_depth`` cells nor presses more than ``max_steps`` steps."""
+
+    max_steps: int
+    max_travel: float  # gap + max_depth, cells
+
+    def reached(self, state: PressState, check: StopCheck) -> bool:
+        return state.steps >= self.max_steps or state.travel >= self.max_travel - _EPS_CELLS
+
+
+@dataclass(frozen=True)
+class DepthRule:
+    """Stop at ``depth`` cells of hand travel past the start gap (the indentation past first contact)."""
+
+    gap: float
+    depth: float
+
+    def reached(self, state: PressState, check: StopCheck) -> bool:
+        return state.travel - self.gap >= self.depth - _EPS_CELLS
+
+
+@dataclass(frozen=True)
+class ForceRule:
+    """Stop when the normal contact force, averaged over the last ``window`` steps, reaches ``force``."""
+
+    force: float
+    window: int = 3
+
+    def reached(self, state: PressState, check: StopCheck) -> bool:
+        recent = state.force_hist[-self.window :]
+        return sum(recent) / len(recent) >= self.force
+
+
+@dataclass(frozen=True)
+class ThresholdRule:
+    """The terminal check of Algorithm 1: stop once in contact and :func:`terminal_chamfer` >= ``threshold``."""
+
+    threshold: float
+
+    def reached(self, state: PressState, check: StopCheck) -> bool:
+        return state.contact and chamfer_reaches(check.contact_cells, check.rest_cells, check.lattice, self.threshold)
+
+
+def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
+    """The ordered stop rules of ``p``: the travel limit, then the first configured of depth, force, threshold.
+
+    ``p`` should have been through :func:`travel_for_depth`; ``max_steps`` is the press-phase step limit.
+    """
+    rules: list[StopRule] = [TravelLimit(int(max_steps), float(p.gap) + float(p.max_depth))]
+    if p.depth is not None:
+        rules.append(DepthRule(float(p.gap), float(p.depth)))
+    elif p.force is not None:
+        rules.append(ForceRule(float(p.force)))
+    elif p.threshold is not None:
+        rules.append(ThresholdRule(float(p.threshold)))
+    return rules
+
+
+def should_stop(rules: list[StopRule], state: PressState, check: StopCheck) -> bool:
+    """Whether any rule, asked in order, says stop."""
+    return any(rule.reached(state, check) for rule in rules)
