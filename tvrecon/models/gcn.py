@@ -262,6 +262,13 @@ class MeshDeformer(nn.Module):
             self._neighbours[key] = neighbour_matrix(edges, V, self.aggregate, batch_size)
         return self._neighbours[key]
 
+    def _deform(
+        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Run deformation block ``s`` on ``g_v`` (B, V_s, C) at vertices x (B, V_s, 3): new vertices and hidden
+        features. Subclasses that give the blocks more per-vertex input override this (the loop stays here)."""
+        return block(g, x, edges, neighbours)
+
     def forward(self, features: Sequence[Tensor], K: Tensor, image_size: tuple[int, int]) -> dict[str, list[Tensor]]:
         """Deform the ellipsoid under the perceptual features.
 
@@ -289,7 +296,7 @@ class MeshDeformer(nn.Module):
             parts = [x, pooled] if hidden is None else [hidden, x, pooled]
             g = torch.cat(parts, dim=-1)  # paper eq. 13 (no label): g_v = concat(f_v, x_v, proj(f_p))
             neighbours = self._level_neighbours(s, B)  # one operator for all the level's convs
-            new_x, hidden = block(g, x, edges, neighbours)
+            new_x, hidden = self._deform(s, block, g, x, edges, neighbours)
             out["verts_before"].append(x)
             out["verts"].append(new_x)
             out["faces"].append(self.template.faces(s))

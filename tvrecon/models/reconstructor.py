@@ -17,9 +17,19 @@ from tvrecon.models.backbone import ResNet18Backbone
 from tvrecon.models.fusion import TactileVisualFusion, TouchPlacement, locate_touches
 from tvrecon.models.gcn import MeshDeformer
 
-__all__ = ["MODES", "TactileVisualReconstructor"]
+__all__ = ["MODES", "TactileVisualReconstructor", "check_view"]
 
 MODES = ("fusion", "visual_only", "tactile_only")
+
+
+def check_view(image: Tensor, K: Tensor, RT: Tensor) -> tuple[int, int]:
+    """Check a batch of views: image (B, 3, H, W), K (B, 3, 3), RT (B, 3, 4). Returns (H, W); ValueError otherwise."""
+    if image.dim() != 4 or image.shape[1] != 3:
+        raise ValueError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
+    B = image.shape[0]
+    if K.shape != (B, 3, 3) or RT.shape != (B, 3, 4):
+        raise ValueError(f"K must be (B, 3, 3) and RT (B, 3, 4) with B={B}, got {tuple(K.shape)}, {tuple(RT.shape)}")
+    return int(image.shape[2]), int(image.shape[3])
 
 
 class TactileVisualReconstructor(nn.Module):
@@ -95,14 +105,7 @@ class TactileVisualReconstructor(nn.Module):
             at level s), ``verts_before`` (B, V_s, 3) float input of deformation block s (for the move/laplace
             terms); and ``features``: the 4 fused visual maps (B, C_j, h_j, w_j).
         """
-        if image.dim() != 4 or image.shape[1] != 3:
-            raise ValueError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
-        B = image.shape[0]
-        if K.shape != (B, 3, 3) or RT.shape != (B, 3, 4):
-            raise ValueError(
-                f"K must be (B, 3, 3) and RT (B, 3, 4) with B={B}, got {tuple(K.shape)}, {tuple(RT.shape)}"
-            )
-        image_size = (int(image.shape[2]), int(image.shape[3]))
+        image_size = check_view(image, K, RT)
         if self.mode == "tactile_only":
             if tactile is None:
                 raise ValueError("tactile_only mode needs tactile, positions and directions (got tactile=None)")

@@ -29,8 +29,8 @@ from torch import Tensor, nn
 from tvrecon.geometry import rotate_to_camera, world_to_camera
 from tvrecon.losses.chamfer import nearest_neighbors
 from tvrecon.models.backbone import ResNet18Backbone
-from tvrecon.models.ellipsoid import unpool_features
 from tvrecon.models.gcn import DeformationBlock, MeshDeformer
+from tvrecon.models.reconstructor import check_view
 
 __all__ = [
     "TouchDeformationBlock",
@@ -221,6 +221,7 @@ class TouchGeometryDeformer(MeshDeformer):
         if not sigmas or any(not float(s) > 0 for s in sigmas):
             raise ValueError(f"sigmas must be positive length scales, got {list(sigmas)}")
         self.sigmas = [float(s) for s in sigmas]
+        self._touch: TouchPoints | None = None  # the contact points of the forward in progress
         touch_channels = FEATURES_PER_SCALE * len(self.sigmas)
         perceptual = int(sum(feature_channels))
         self.stages = nn.ModuleList(
@@ -248,31 +249,22 @@ class TouchGeometryDeformer(MeshDeformer):
         Returns:
             as :meth:`MeshDeformer.forward`.
         """
-        B = K.shape[0]
         if touch is None:
+            B = K.shape[0]
             empty = K.new_zeros(B, 1, 3)
             touch = TouchPoints(empty, empty, torch.zeros(B, 1, dtype=torch.bool, device=K.device))
-        x = self.template.verts(0).to(K.dtype)[None].expand(B, -1, -1)  # (B, V0, 3)
-        hidden: Tensor | None = None
-        out: dict[str, list[Tensor]] = {"verts": [], "verts_before": [], "faces": [], "edges": [], "init_verts": []}
-        for s, block in enumerate(self.stages):
-            if s > 0:
-                parent = self.template.parent_edges(s)
-                x = unpool_features(x, parent)
-                hidden = unpool_features(hidden, parent)
-            edges = self.template.edges(s)
-            pooled = self.pool(x, K, features, image_size)  # (B, V_s, sum C)
-            parts = [x, pooled] if hidden is None else [hidden, x, pooled]
-            g = torch.cat(parts, dim=-1)  # g_v of paper eq. 13 (see gcn.MeshDeformer)
-            feats = touch_features(x, touch, self.sigmas)  # (B, V_s, 7 S)
-            new_x, hidden = block(g, x, edges, self._level_neighbours(s, B), feats)
-            out["verts_before"].append(x)
-            out["verts"].append(new_x)
-            out["faces"].append(self.template.faces(s))
-            out["edges"].append(edges)
-            out["init_verts"].append(self.template.verts(s))
-            x = new_x
-        return out
+        self._touch = touch  # read by _deform during this forward only
+        try:
+            return super().forward(features, K, image_size)
+        finally:
+            self._touch = None
+
+    def _deform(
+        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Block ``s`` with the touch features of its input vertices x (B, V_s, 3) (see :func:`touch_features`)."""
+        assert self._touch is not None, "TouchGeometryDeformer._deform runs inside forward only"
+        return block(g, x, edges, neighbours, touch_features(x, self._touch, self.sigmas))
 
 
 class TouchGeometryReconstructor(nn.Module):
@@ -353,13 +345,7 @@ class TouchGeometryReconstructor(nn.Module):
             as :meth:`TactileVisualReconstructor.forward`, plus ``touch`` (camera-frame :class:`TouchPoints`, or None)
             for the patch training term.
         """
-        if image.dim() != 4 or image.shape[1] != 3:
-            raise ValueError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
-        B = image.shape[0]
-        if K.shape != (B, 3, 3) or RT.shape != (B, 3, 4):
-            raise ValueError(
-                f"K must be (B, 3, 3) and RT (B, 3, 4) with B={B}, got {tuple(K.shape)}, {tuple(RT.shape)}"
-            )
+        image_size = check_view(image, K, RT)
         patches = (patch_points, patch_normals, patch_mask)
         if any(p is None for p in patches) and not all(p is None for p in patches):
             raise ValueError("give patch_points, patch_normals and patch_mask together (or none of them)")
@@ -367,7 +353,6 @@ class TouchGeometryReconstructor(nn.Module):
         if patch_points is not None:
             assert patch_normals is not None and patch_mask is not None
             touch = self.touch_points(RT, patch_points, patch_normals, patch_mask, touch_mask)
-        image_size = (int(image.shape[2]), int(image.shape[3]))
         x = self.visual.stem(image)
         features = []
         for j in range(len(self.visual.stages)):
