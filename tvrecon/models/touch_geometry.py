@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -201,35 +201,25 @@ class TouchGeometryDeformer(MeshDeformer):
 
     Args:
         sigmas: length scales of :func:`touch_features` (object units).
-        other args: as :class:`~tvrecon.models.gcn.MeshDeformer`.
+        deformer_args: :class:`~tvrecon.models.gcn.MeshDeformer`'s arguments (feature_channels, hidden, ...).
     """
 
-    def __init__(
-        self,
-        feature_channels: Sequence[int] = (64, 128, 256, 512),
-        hidden: int = 192,
-        num_blocks: int = 6,
-        num_stages: int = 3,
-        radii: Sequence[float] = (0.35, 0.35, 0.25),
-        distance: float = 2.0,
-        rings: int = 11,
-        segments: int = 14,
-        aggregate: str = "mean",
-        sigmas: Sequence[float] = (0.02, 0.08, 0.3),
-    ) -> None:
-        super().__init__(feature_channels, hidden, num_blocks, num_stages, radii, distance, rings, segments, aggregate)
+    def __init__(self, sigmas: Sequence[float] = (0.02, 0.08, 0.3), **deformer_args: Any) -> None:
+        super().__init__(**deformer_args)
         if not sigmas or any(not float(s) > 0 for s in sigmas):
             raise ValueError(f"sigmas must be positive length scales, got {list(sigmas)}")
         self.sigmas = [float(s) for s in sigmas]
         self._touch: TouchPoints | None = None  # the contact points of the forward in progress
         touch_channels = FEATURES_PER_SCALE * len(self.sigmas)
-        perceptual = int(sum(feature_channels))
+        first = self.stages[0]  # the plain blocks MeshDeformer built: same widths, plus the touch inputs
+        hidden, num_blocks = first.conv_in.self_linear.out_features, len(first.blocks)
+        perceptual = first.conv_in.self_linear.in_features - 3
         self.stages = nn.ModuleList(
             [
                 TouchDeformationBlock(
-                    (hidden if s > 0 else 0) + 3 + perceptual, touch_channels, hidden, num_blocks, aggregate
+                    (hidden if s > 0 else 0) + 3 + perceptual, touch_channels, hidden, num_blocks, self.aggregate
                 )
-                for s in range(num_stages)
+                for s in range(self.num_stages)
             ]
         )
 
