@@ -146,14 +146,7 @@ class ConeTouchPolicy(TouchPolicy):
         if self.oversample < 1:
             raise ValueError(f"{what}.oversample must be >= 1, got {self.oversample}")
 
-    def sample(
-        self,
-        mesh: trimesh.Trimesh,
-        n: int,
-        rng: np.random.Generator,
-        camera: Camera | None = None,
-        sim: EIPSimulator | None = None,
-    ) -> Touches:
+    def sample(self, mesh, n, rng, camera=None, sim=None) -> Touches:  # the arguments of TouchPolicy.sample
         points, normals, directions = self._candidates(mesh, n, n, rng, camera, sim)
         return self._touches(points[:n], normals[:n], directions[:n], rng)
 

@@ -6,11 +6,11 @@ per particle. One step is :meth:`MLSMPM._p2g` (eq. 5-6), :meth:`MLSMPM._grid_upd
 :meth:`MLSMPM._g2p` (eq. 8-11). :class:`tvrecon.sim.reference.ReferenceMPM` is the same step written naively (dense
 grid, a loop over the 27 offsets, SVD): read it first; the tests hold the two equal to round-off.
 
-Layout: the grid is a block per scene aligned to the global lattice and covering only the bounding box of that scene's
-particles (cost follows the particles, not ``n_grid^3``); mass and momentum are scattered in one fused ``(N, 4)``
-``index_add_``; the 27-node sums are small matrix products against the precomputed offsets; the polar decomposition
-is an analytic Newton iteration (``materials.polar_decomposition``). With no input requiring grad the step runs under
-``torch.no_grad``; otherwise the same code is differentiated by autograd.
+Layout (:mod:`tvrecon.sim.mpm_grid`): the grid is a block per scene aligned to the global lattice and covering only
+the bounding box of that scene's particles (cost follows the particles, not ``n_grid^3``); mass and momentum are
+scattered in one fused ``(N, 4)`` ``index_add_``; the 27-node sums are small matrix products against the precomputed
+offsets; the polar decomposition is an analytic Newton iteration (``materials.polar_decomposition``). With no input
+requiring grad the step runs under ``torch.no_grad``; otherwise the same code is differentiated by autograd.
 """
 
 from __future__ import annotations
@@ -18,18 +18,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
 from .colliders import Collider, collide_grid
 from .materials import fixed_corotated_kirchhoff, lame_parameters, p_wave_speed, polar_decomposition
+from .mpm_grid import FIX_HINT, Stencil, Transfer, block_layout, share_node_force, shift_nodes, stencil_offsets
 
 __all__ = ["MPMConfig", "ParticleState", "MLSMPM", "cfl_dt"]
-
-_FIX_HINT = "reduce dt / hand speed, increase n_grid"
-_MAX_GRID_NODES = 64_000_000
 
 
 @dataclass
@@ -157,32 +154,6 @@ class ParticleState:
         return 1 if self.batch is None else int(self.batch.max()) + 1
 
 
-def _shift(t: Tensor, s: int) -> Tensor:
-    """Shift along the last (node) axis: out[..., n] = t[..., n - s], zero filled (s < 0 shifts the other way)."""
-    if s == 0:
-        return t
-    return torch.nn.functional.pad(t, (s, -s))
-
-
-class _Stencil(NamedTuple):
-    """Particle -> node stencil of one step, shared by P2G and G2P (P particles, B scenes, N block-grid nodes)."""
-
-    fx: Tensor  # (P, 3) particle position in cells relative to its base node, in [0.5, 1.5)
-    w: Tensor  # (27, P) quadratic B-spline weight of each stencil node, offsets (i, j, k) with i slowest
-    lo: Tensor  # (B, 3) int64 global node index of each scene's block origin
-    lin: Tensor  # (P,) int64 linear block-grid index of each particle's base node
-    D: list[int]  # block dims per scene (nodes per axis)
-    n_nodes: int  # N = B * D[0] * D[1] * D[2]
-    chunk: int  # particles per chunk of the stencil passes (>= P: all at once)
-
-
-def _offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
-    """(27, 3) node offsets (i, j, k) in {0,1,2}^3, i slowest."""
-    r = torch.arange(3, device=device)
-    o = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(27, 3)
-    return o.to(dtype)
-
-
 class MLSMPM:
     """MLS-MPM stepper implementing the simulator contract (paper eq. 5-11; naive twin: ``tvrecon.sim.reference``).
 
@@ -214,9 +185,7 @@ class MLSMPM:
                 raise ValueError(f"dt must be > 0, got {cfg.dt}")
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
-        # the last step's transfer (lin (P,), w (27, P), node mass (N,), node collider force (N, 3), strides):
-        # references to tensors the step computed anyway, for last_particle_force
-        self._last_transfer: tuple[Tensor, Tensor, Tensor, Tensor, tuple[int, int]] | None = None
+        self._last_transfer: Transfer | None = None  # the last step's transfer, for last_particle_force
         self.chunk_size = 4096  # particles per cache-sized block of the stencil passes (no-grad path); 0 = off
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
 
@@ -224,7 +193,7 @@ class MLSMPM:
     def _constants(self, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
         key = (dtype, device)
         if key not in self._consts:
-            o = _offsets(device, dtype)  # (27, 3)
+            o = stencil_offsets(device, dtype)  # (27, 3)
             o_aug_t = torch.cat([torch.ones(27, 1, dtype=dtype, device=device), o], 1)  # (27, 4): [1, o]
             self._consts[key] = (o, o_aug_t, o.to(torch.int64))
         return self._consts[key]
@@ -277,31 +246,6 @@ class MLSMPM:
         with torch.no_grad():
             return self._step(state, colliders, hand_velocity, alpha, B)
 
-    def _layout(self, base_f: Tensor, batch: Tensor | None, B: int) -> tuple[Tensor, Tensor, list[int]]:
-        """Local grid blocks: per-scene origin lo (B, 3) int64, linear node index of each particle's base node (P,),
-        block dims D [3]. Raises FloatingPointError on a non-finite or exploded state."""
-        if batch is None:
-            lo_f = base_f.amin(0, keepdim=True)
-            hi_f = base_f.amax(0, keepdim=True)
-        else:
-            idx = batch[:, None].expand(-1, 3)
-            lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
-            hi_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amax", include_self=False)
-        ext = hi_f - lo_f + 3.0  # nodes per axis: base .. base + 2
-        bounds = torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)]).tolist()
-        if not all(math.isfinite(b) for b in bounds):
-            raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {_FIX_HINT}")
-        D = [int(d) for d in bounds[:3]]
-        if B * D[0] * D[1] * D[2] > _MAX_GRID_NODES:
-            raise FloatingPointError(f"MPM state exploded: particles spread over {D} grid cells per scene; {_FIX_HINT}")
-        lo = lo_f.to(torch.int64)  # (B, 3)
-        base = base_f.to(torch.int64)
-        local = base - (lo if batch is None else lo[batch])  # (P, 3)
-        lin = (local[:, 0] * D[1] + local[:, 1]) * D[2] + local[:, 2]
-        if batch is not None:
-            lin = lin + batch * (D[0] * D[1] * D[2])
-        return lo, lin, D
-
     def _step(
         self,
         state: ParticleState,
@@ -316,21 +260,21 @@ class MLSMPM:
         gv = self._grid_update(grid, colliders, st)
         return self._g2p(state, st, gv, hand_velocity, alpha)
 
-    def _stencil(self, state: ParticleState, B: int) -> _Stencil:
+    def _stencil(self, state: ParticleState, B: int) -> Stencil:
         """Particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights."""
         x = state.x
         P = x.shape[0]
         Xg = x * self.inv_dx
         base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
-        lo, lin, D = self._layout(base_f, state.batch, B)
+        lo, lin, D = block_layout(base_f, state.batch, B)
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
         # channel-first layouts (..., P) below: every big elementwise op runs over contiguous particle rows
         fxt = fx.T.contiguous()  # (3, P)
         wa = torch.stack([0.5 * (1.5 - fxt) ** 2, 0.75 - (fxt - 1.0) ** 2, 0.5 * (fxt - 0.5) ** 2], 1)  # (axis, k, P)
         w = (wa[0][:, None, None] * wa[1][None, :, None] * wa[2][None, None, :]).reshape(27, P)  # o = (i, j, k)
-        return _Stencil(fx, w, lo, lin, D, B * D[0] * D[1] * D[2], self._chunk(P))
+        return Stencil(fx, w, lo, lin, D, B * D[0] * D[1] * D[2], self._chunk(P))
 
-    def _p2g(self, state: ParticleState, st: _Stencil) -> Tensor:
+    def _p2g(self, state: ParticleState, st: Stencil) -> Tensor:
         """Scatter mass and momentum to the grid (paper eq. 5 and 6): the (4, N) block grid of [m_i, (m v)_i]."""
         x, v, C, F = state.x, state.v, state.C, state.F
         P = x.shape[0]
@@ -369,11 +313,11 @@ class MLSMPM:
                 contrib = torch.matmul(o_aug_t, MT[:, :, sl]).mul_(w[:, sl])
                 G.index_add_(1, lin[sl], contrib.view(108, -1))
         Gt = G.view(4, 3, 3, 3, n_nodes)  # (c, i, j, k, node)
-        T = Gt[:, :, :, 0] + _shift(Gt[:, :, :, 1], 1) + _shift(Gt[:, :, :, 2], 2)  # (4, 3, 3, N)
-        U = T[:, :, 0] + _shift(T[:, :, 1], S1) + _shift(T[:, :, 2], 2 * S1)  # (4, 3, N)
-        return U[:, 0] + _shift(U[:, 1], S0) + _shift(U[:, 2], 2 * S0)  # (4, N): mass, momentum
+        T = Gt[:, :, :, 0] + shift_nodes(Gt[:, :, :, 1], 1) + shift_nodes(Gt[:, :, :, 2], 2)  # (4, 3, 3, N)
+        U = T[:, :, 0] + shift_nodes(T[:, :, 1], S1) + shift_nodes(T[:, :, 2], 2 * S1)  # (4, 3, N)
+        return U[:, 0] + shift_nodes(U[:, 1], S0) + shift_nodes(U[:, 2], 2 * S0)  # (4, N): mass, momentum
 
-    def _grid_update(self, grid: Tensor, colliders: list[Collider | None], st: _Stencil) -> Tensor:
+    def _grid_update(self, grid: Tensor, colliders: list[Collider | None], st: Stencil) -> Tensor:
         """Grid velocity (paper eq. 7), damping and colliders; sets ``last_force``. Returns the (N, 3) velocities.
 
         Raises FloatingPointError when a node would move more than one cell per step (or is NaN)."""
@@ -389,19 +333,19 @@ class MLSMPM:
         gv, force, node_force = collide_grid(gv, gm, colliders, st.lo, st.D, self.dx, dt, self.cfg.friction)
         self.last_force = force
         S0, S1 = st.D[1] * st.D[2], st.D[2]
-        self._last_transfer = (st.lin, st.w.detach(), gm.detach(), node_force.detach(), (S0, S1))
+        self._last_transfer = Transfer(st.lin, st.w.detach(), gm.detach(), node_force.detach(), (S0, S1))
         vmax = float(gv.detach().abs().amax()) if st.n_nodes else 0.0
         if not vmax * dt <= dx:  # also catches NaN
             raise FloatingPointError(
                 f"MPM state exploded (grid speed {vmax:.3g} moves {vmax * dt / dx:.3g} cells per step, NaN or > 1): "
-                f"{_FIX_HINT}"
+                f"{FIX_HINT}"
             )
         return gv
 
     def _g2p(
         self,
         state: ParticleState,
-        st: _Stencil,
+        st: Stencil,
         gv: Tensor,
         hand_velocity: Tensor | None,
         alpha: Tensor | None,
@@ -417,9 +361,9 @@ class MLSMPM:
 
         # table H[node, c, o] = v_c(node + offset_o) from 9 shifts; a row gather per particle
         gvc = gv.T  # (3, N)
-        K1 = torch.stack([gvc, _shift(gvc, -1), _shift(gvc, -2)], 1)  # (3, k, N)
-        K2 = torch.stack([K1, _shift(K1, -S1), _shift(K1, -2 * S1)], 1)  # (3, j, k, N)
-        H = torch.stack([K2, _shift(K2, -S0), _shift(K2, -2 * S0)], 1)  # (3, i, j, k, N)
+        K1 = torch.stack([gvc, shift_nodes(gvc, -1), shift_nodes(gvc, -2)], 1)  # (3, k, N)
+        K2 = torch.stack([K1, shift_nodes(K1, -S1), shift_nodes(K1, -2 * S1)], 1)  # (3, j, k, N)
+        H = torch.stack([K2, shift_nodes(K2, -S0), shift_nodes(K2, -2 * S0)], 1)  # (3, i, j, k, N)
         H = H.reshape(81, n_nodes)
         if chunk >= P:
             vg = H.index_select(1, lin).view(3, 27, P) * w  # (3, 27, P)
@@ -457,14 +401,8 @@ class MLSMPM:
         """
         if self._last_transfer is None:
             raise RuntimeError("last_particle_force needs a step first")
-        lin, w, gm, node_force, (S0, S1) = self._last_transfer
-        if mass.shape != lin.shape:
-            raise ValueError(f"mass must be (P,) = {tuple(lin.shape)} like the last step's particles, got {mass.shape}")
-        _, _, o_int = self._constants(w.dtype, w.device)
-        idx = lin[None, :] + (o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2])[:, None]  # (27, P) stencil nodes
-        per_mass = node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]  # (N, 3)
-        acc = (w[:, :, None] * per_mass[idx]).sum(0)  # (P, 3)
-        return mass.detach().to(acc)[:, None] * acc
+        w = self._last_transfer.w
+        return share_node_force(self._last_transfer, mass, self._constants(w.dtype, w.device)[2])
 
     def _chunk(self, P: int) -> int:
         """Particles per chunk of the stencil passes: all at once under autograd, cache-sized blocks otherwise."""

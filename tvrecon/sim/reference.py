@@ -13,10 +13,28 @@ a real check.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import torch
 from torch import Tensor
 
 from tvrecon.sim.materials import lame_parameters
+
+
+def _stencil(base: Tensor, fx: Tensor, w: list[Tensor], n: int, dx: float) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
+    """The 27 nodes around every particle, one offset (i, j, k) at a time.
+
+    Yields (node index (P,) in the dense ``n^3`` grid, B-spline weight w_ip (P,), x_i - x_p (P, 3)).
+    """
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                off = torch.tensor([i, j, k], dtype=fx.dtype)
+                dpos = (off - fx) * dx
+                weight = w[i][:, 0] * w[j][:, 1] * w[k][:, 2]
+                idx = base + torch.tensor([i, j, k])
+                lin = (idx[:, 0] * n + idx[:, 1]) * n + idx[:, 2]
+                yield lin, weight, dpos
 
 
 class ReferenceMPM:
@@ -64,17 +82,10 @@ class ReferenceMPM:
         affine = stress + mass[:, None, None] * C
         grid_m = torch.zeros(n * n * n, dtype=x.dtype)
         grid_mv = torch.zeros(n * n * n, 3, dtype=x.dtype)
-        for i in range(3):
-            for j in range(3):
-                for k in range(3):
-                    off = torch.tensor([i, j, k], dtype=x.dtype)
-                    dpos = (off - fx) * dx
-                    weight = w[i][:, 0] * w[j][:, 1] * w[k][:, 2]
-                    idx = base + torch.tensor([i, j, k])
-                    lin = (idx[:, 0] * n + idx[:, 1]) * n + idx[:, 2]
-                    grid_m.index_add_(0, lin, weight * mass)
-                    mom = mass[:, None] * v + (affine @ dpos[:, :, None])[:, :, 0]
-                    grid_mv.index_add_(0, lin, weight[:, None] * mom)
+        for lin, weight, dpos in _stencil(base, fx, w, n, dx):  # P2G (eq. 5-6)
+            grid_m.index_add_(0, lin, weight * mass)
+            mom = mass[:, None] * v + (affine @ dpos[:, :, None])[:, :, 0]
+            grid_mv.index_add_(0, lin, weight[:, None] * mom)
         active = grid_m > 0
         grid_v = torch.zeros_like(grid_mv)
         grid_v[active] = grid_mv[active] / grid_m[active][:, None]
@@ -96,17 +107,10 @@ class ReferenceMPM:
             grid_v[ids] = new
         new_v = torch.zeros_like(v)
         new_C = torch.zeros_like(C)
-        for i in range(3):
-            for j in range(3):
-                for k in range(3):
-                    off = torch.tensor([i, j, k], dtype=x.dtype)
-                    dpos = (off - fx) * dx
-                    weight = w[i][:, 0] * w[j][:, 1] * w[k][:, 2]
-                    idx = base + torch.tensor([i, j, k])
-                    lin = (idx[:, 0] * n + idx[:, 1]) * n + idx[:, 2]
-                    gv = grid_v[lin]
-                    new_v += weight[:, None] * gv
-                    new_C += 4 * inv_dx * inv_dx * weight[:, None, None] * gv[:, :, None] * dpos[:, None, :]
+        for lin, weight, dpos in _stencil(base, fx, w, n, dx):  # G2P (eq. 8-9)
+            gv = grid_v[lin]
+            new_v += weight[:, None] * gv
+            new_C += 4 * inv_dx * inv_dx * weight[:, None, None] * gv[:, :, None] * dpos[:, None, :]
         if alpha is not None:
             hv = torch.zeros(3, dtype=x.dtype) if hand_velocity is None else hand_velocity
             new_v = alpha[:, None] * new_v + (1 - alpha[:, None]) * hv

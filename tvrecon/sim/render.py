@@ -10,8 +10,9 @@ All writes are atomic (temporary file in the same directory, then ``os.replace``
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -30,6 +31,20 @@ def _save_figure(fig: Figure, path: str | Path, dpi: int) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def _colorbar_png(
+    draw: Callable[[Any], Any], path: str | Path, dpi: int, colorbar: str, xlabel: str, title: str
+) -> Path:
+    """One sensor-frame panel with a colorbar: ``draw(ax)`` draws it and returns the image the colorbar shows."""
+    fig = Figure(figsize=(5.2, 4.4))
+    ax = fig.add_subplot(1, 1, 1)
+    im = draw(ax)
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04).set_label(colorbar)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("sensor y")
+    ax.set_title(title)
+    return _save_figure(fig, path, dpi)
 
 
 def _as_image(image: Tensor | np.ndarray) -> np.ndarray:
@@ -72,16 +87,11 @@ def save_tactile_png(
     """
     img = _as_image(image)
     top = float(vmax) if vmax is not None else max(float(img[2].max()), 1e-3)
-    fig = Figure(figsize=(5.2, 4.4))
-    ax = fig.add_subplot(1, 1, 1)
-    im = _draw_tactile(ax, img, top, arrows=True)
-    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-    cb.set_label("normal displacement into the pad (cells)")
     shear = float(np.hypot(img[0], img[1]).max())
-    ax.set_xlabel(f"sensor x   (arrows: shear, max {shear:.3f} cells)")
-    ax.set_ylabel("sensor y")
-    ax.set_title(title or f"tactile image {img.shape[1]}x{img.shape[2]}, max normal {float(img[2].max()):.3f} cells")
-    return _save_figure(fig, path, dpi)
+    xlabel = f"sensor x   (arrows: shear, max {shear:.3f} cells)"
+    title = title or f"tactile image {img.shape[1]}x{img.shape[2]}, max normal {float(img[2].max()):.3f} cells"
+    colorbar = "normal displacement into the pad (cells)"
+    return _colorbar_png(lambda ax: _draw_tactile(ax, img, top, arrows=True), path, dpi, colorbar, xlabel, title)
 
 
 def save_sequence_png(

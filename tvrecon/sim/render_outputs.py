@@ -13,7 +13,7 @@ from PIL import Image
 from torch import Tensor
 
 from tvrecon.atomic import atomic_write_bytes
-from tvrecon.sim.render import _draw_tactile, _save_figure
+from tvrecon.sim.render import _colorbar_png, _draw_tactile, _save_figure
 
 __all__ = ["auto_arrow_gain", "save_force_png", "save_markers_png", "save_rgb_png", "save_outputs_png"]
 
@@ -57,14 +57,10 @@ def save_force_png(field: Tensor | np.ndarray, path: str | Path, title: str | No
         field: (H, W, 3) force per taxel in the sensor frame (``TactileReading.force_field``).
     """
     f = _np(field)
-    fig = Figure(figsize=(5.2, 4.4))
-    ax = fig.add_subplot(1, 1, 1)
-    im = _draw_force(ax, f)
-    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04).set_label("normal force per taxel (sim. units)")
-    ax.set_xlabel(f"sensor x   (arrows: shear, total {np.hypot(f[..., 0].sum(), f[..., 1].sum()):.3g})")
-    ax.set_ylabel("sensor y")
-    ax.set_title(title or f"force field, total normal {float(f[..., 2].sum()):.4g}")
-    return _save_figure(fig, path, dpi)
+    xlabel = f"sensor x   (arrows: shear, total {np.hypot(f[..., 0].sum(), f[..., 1].sum()):.3g})"
+    title = title or f"force field, total normal {float(f[..., 2].sum()):.4g}"
+    colorbar = "normal force per taxel (sim. units)"
+    return _colorbar_png(lambda ax: _draw_force(ax, f), path, dpi, colorbar, xlabel, title)
 
 
 def save_markers_png(
