@@ -7,6 +7,8 @@ Writes ``tactile.png`` (normal displacement + shear arrows), ``reading.npz`` (ev
 with ``--surface``, ``pad_surface.ply`` (marching-cubes mesh of the deformed pad). ``--outputs force markers rgb``
 adds ``force.png`` (per-taxel normal/shear force), ``markers.png`` (marker grid as a camera behind the pad sees it),
 ``rgb.png`` (GelSight-style photometric image) and ``outputs.png`` (all of them beside the displacement).
+``--sensor digit`` (or ``gelsight_mini``, ``gelsight_r15``, ``tactip``) presses a pad with that sensor's size,
+thickness and material (``tvrecon.sim.sensor_presets``, ``docs/sensors.md``).
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ import trimesh
 from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading
 from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, save_tactile_png
 from tvrecon.sim.sensor import SensorConfig
+from tvrecon.sim.sensor_presets import SENSOR_PRESETS
+
+SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 
 BUILTIN_SHAPES = ("torus", "gear", "sphere", "cube")
 SENSOR_OUTPUTS = ("force", "markers", "rgb")
@@ -137,16 +142,15 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     if not np.isfinite(direction).all() or np.linalg.norm(direction) < 1e-8:
         raise ValueError(f"--direction must be a non-zero vector, got {args.direction}")
     position = np.asarray(args.position, dtype=np.float64) if args.position else None
-    sensor = SensorConfig(
-        resolution=(args.resolution, args.resolution),
-        layers=args.layers,
-        E=args.E,
-        nu=args.nu,
-        alpha_profile=args.profile,
-        damping=args.damping,
-    )
+    sensor, press_extra = cli_sensor(args)
     press = PressConfig(
-        n_grid=args.n_grid, depth=args.depth, force=args.force, record_every=1, progress=True, release_steps=0
+        n_grid=args.n_grid,
+        depth=args.depth,
+        force=args.force,
+        record_every=1,
+        progress=True,
+        release_steps=0,
+        **press_extra,
     )
     sim = EIPSimulator(sensor, press)
     # without --position: the first surface the pad meets along --direction, its footprint clear of the object
@@ -199,6 +203,37 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     return files
 
 
+def cli_sensor(args: argparse.Namespace) -> tuple[SensorConfig, dict]:
+    """The pad of a CLI run and the PressConfig fields that go with it.
+
+    Without ``--sensor``: the flags (defaults: a 64x64 pad, 6 layers, E 3, nu 0.25). With ``--sensor NAME``: the
+    preset's pad at ``--n-grid`` (``tvrecon.sim.sensor_presets``) and its hand speed; ``--resolution``, ``--layers``,
+    ``--E`` and ``--nu`` given explicitly still override it. Meshes stay in the CLI's unit-extent scale, so the
+    printed scale says how many mm one cell and the object stand for.
+    """
+    fields = {"alpha_profile": args.profile, "damping": args.damping}
+    press_extra: dict = {}
+    if args.sensor:
+        preset = SENSOR_PRESETS[args.sensor]
+        base = preset.sensor_config(args.n_grid)
+        fields.update(resolution=base.resolution, layers=base.layers, E=base.E, nu=base.nu)
+        press_extra["speed_fraction"] = preset.press_overrides(args.n_grid)["speed_fraction"]
+        H, W = base.resolution
+        cell, obj = preset.cell_mm(args.n_grid), preset.domain_mm(args.n_grid)
+        print(
+            f"sensor {preset.title}: {W}x{H} pad, {base.layers} layers, E {base.E} (x100 kPa), nu {base.nu}; "
+            f"1 cell = {cell:.3f} mm, the unit-extent object = {obj:.1f} mm"
+        )
+    else:
+        fields.update(resolution=(64, 64), layers=6, E=3.0, nu=0.25)
+    if args.resolution is not None:
+        fields["resolution"] = (args.resolution, args.resolution)
+    for name in ("layers", "E", "nu"):
+        if getattr(args, name) is not None:
+            fields[name] = getattr(args, name)
+    return SensorConfig(**fields), press_extra
+
+
 def write_sensor_outputs(
     reading: TactileReading, sensor: SensorConfig, args: argparse.Namespace, out: Path
 ) -> dict[str, Path]:
@@ -248,14 +283,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--position", type=float, nargs=3, default=None, help="touch point (default: the first surface the pad meets)"
     )
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--E", type=float, default=3.0, help="Young's modulus")
-    p.add_argument("--nu", type=float, default=0.25, help="Poisson ratio")
+    p.add_argument(
+        "--sensor",
+        choices=SENSOR_PRESET_NAMES,
+        default=None,
+        help="pad preset of a real sensor (docs/sensors.md): its size, thickness, E, nu at --n-grid",
+    )
+    p.add_argument("--E", type=float, default=None, help="Young's modulus (default 3, or the --sensor preset's)")
+    p.add_argument("--nu", type=float, default=None, help="Poisson ratio (default 0.25, or the --sensor preset's)")
     p.add_argument("--depth", type=float, default=None, help="stop at this indentation (cells)")
     p.add_argument("--force", type=float, default=None, help="stop at this normal force")
     p.add_argument("--profile", choices=("clamped", "linear"), default="clamped", help="alpha profile")
     p.add_argument("--damping", type=float, default=0.0, help="grid velocity damping rate")
-    p.add_argument("--resolution", type=int, default=64, help="tactile image size (H = W)")
-    p.add_argument("--layers", type=int, default=6, help="pad thickness in particles")
+    p.add_argument("--resolution", type=int, default=None, help="tactile image size H = W (default 64, or --sensor's)")
+    p.add_argument("--layers", type=int, default=None, help="pad thickness in particles (default 6, or --sensor's)")
     p.add_argument("--n-grid", type=int, default=128, help="grid cells across the domain")
     p.add_argument("--frames", type=int, default=5, help="frames in deformation.png")
     p.add_argument("--ply", type=int, default=3, help="pad .ply files to write (last frames)")
