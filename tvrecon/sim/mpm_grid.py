@@ -82,8 +82,7 @@ def block_layout(
         lo_f = base_f.amin(0, keepdim=True)
         hi_f = base_f.amax(0, keepdim=True)
     elif block is not None:
-        bv = base_f.reshape(B, block, 3)
-        lo_f, hi_f = bv.amin(1), bv.amax(1)
+        lo_f, hi_f = torch.aminmax(base_f.reshape(B, block, 3), dim=1)
     else:
         idx = batch[:, None].expand(-1, 3)
         lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
