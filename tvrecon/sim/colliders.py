@@ -75,10 +75,7 @@ def collide_grid(
     if all(c is None for c in colliders):
         return gv, force, torch.zeros_like(gv)
     nb = D[0] * D[1] * D[2]
-    a0 = torch.arange(D[0], device=device)
-    a1 = torch.arange(D[1], device=device)
-    a2 = torch.arange(D[2], device=device)
-    local = torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(nb, 3)  # (nb, 3)
+    local = None  # (nb, 3) node offsets in the block, built when a collider needs node positions
     lo_list = lo.tolist()
     pieces = []
     forces = []
@@ -93,14 +90,21 @@ def collide_grid(
             forces.append(torch.zeros(3, dtype=dtype, device=device))
             continue
         mb = gm[b * nb : (b + 1) * nb]
-        node = local + torch.tensor(lo_list[b], device=device)  # (nb, 3) global node indices
-        if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
-            sdf, n = col.at_nodes(node)
+        if hasattr(col, "at_block"):  # tabulated collider: the block's nodes by per-axis indices (no interpolation)
+            sdf, n = col.at_block(lo_list[b], D, device)
             sdf, n = sdf.to(dtype), n.to(dtype)
         else:
-            pos = node.to(dtype) * dx  # (nb, 3) node positions
-            sdf = col.sdf(pos)
-            n = col.normal(pos)
+            if local is None:
+                a0, a1, a2 = (torch.arange(d, device=device) for d in D)
+                local = torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(nb, 3)
+            node = local + torch.tensor(lo_list[b], device=device)  # (nb, 3) global node indices
+            if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
+                sdf, n = col.at_nodes(node)
+                sdf, n = sdf.to(dtype), n.to(dtype)
+            else:
+                pos = node.to(dtype) * dx  # (nb, 3) node positions
+                sdf = col.sdf(pos)
+                n = col.normal(pos)
         vn = (vb * n).sum(1, keepdim=True)  # (nb, 1)
         hit = (sdf < 0)[:, None] & (vn < 0) & (mb > 0)[:, None]
         vt = vb - vn * n
@@ -113,6 +117,8 @@ def collide_grid(
         dp = mb[:, None] * (vb_new - vb)  # momentum removed by the collider, per node
         node_forces.append(dp / dt)
         forces.append(dp.sum(0) / dt)
+    if B == 1:  # one scene: its block is the grid (no copy)
+        return pieces[0], torch.stack(forces, 0), node_forces[0]
     return torch.cat(pieces, 0), torch.stack(forces, 0), torch.cat(node_forces, 0)
 
 
@@ -364,6 +370,17 @@ class MeshCollider:
                     out = out + (wx * wy * wz)[:, None] * t[ix, iy, iz]
         return out
 
+    def _unit_normals(self, device: torch.device) -> Tensor:
+        """(X * Y * Z, 3) float32 node normals renormalized in float32 (+z where zero), once per device."""
+        cache = self.__dict__.setdefault("_unit_normal_cache", {})
+        if device not in cache:
+            n = self.node_normal.to(device).reshape(-1, 3)
+            nn = n.norm(dim=1, keepdim=True)
+            up = torch.zeros_like(n)
+            up[:, 2] = 1.0
+            cache[device] = torch.where(nn > 1e-12, n / torch.where(nn > 1e-12, nn, torch.ones_like(nn)), up)
+        return cache[device]
+
     def at_nodes(self, index: Tensor) -> tuple[Tensor, Tensor]:
         """Signed distance and unit normal at integer lattice nodes, by direct gather (no interpolation).
 
@@ -382,14 +399,39 @@ class MeshCollider:
         gc = torch.minimum(torch.clamp(g, min=0), hi)
         flat = (gc[:, 0] * self.dims[1] + gc[:, 1]) * self.dims[2] + gc[:, 2]
         sdf_t = self.node_sdf.to(dev).reshape(-1)
-        nrm_t = self.node_normal.to(dev).reshape(-1, 3)
         outside = (g - gc).to(torch.float32).norm(dim=1) * self.dx
-        n = nrm_t[flat]
-        nn = n.norm(dim=1, keepdim=True)
-        up = torch.zeros_like(n)
-        up[:, 2] = 1.0
-        n = torch.where(nn > 1e-12, n / torch.where(nn > 1e-12, nn, torch.ones_like(nn)), up)
-        return sdf_t[flat] + outside, n
+        return sdf_t[flat] + outside, self._unit_normals(dev)[flat]
+
+    def at_block(
+        self, lo: Sequence[int], D: Sequence[int], device: str | torch.device = "cpu"
+    ) -> tuple[Tensor, Tensor]:
+        """:meth:`at_nodes` of a whole block: the ``D[0] x D[1] x D[2]`` nodes from global node ``lo``, i slowest.
+
+        Same values as ``at_nodes`` of those nodes; the flat table index is built from three per-axis index vectors
+        and the distance to the region box only when the block leaves it (the MPM grid asks every step).
+
+        Returns:
+            sdf (N,) float32 and normal (N, 3) float32 on ``device``, N = D[0] * D[1] * D[2].
+        """
+        dev = torch.device(device)
+        lo_t = self.__dict__.get("_lo_int")
+        if lo_t is None:
+            lo_t = self._lo_int = [int(v) for v in self.lo_index.round().long().tolist()]
+        g = [torch.arange(int(lo[k]) - lo_t[k], int(lo[k]) - lo_t[k] + int(D[k]), device=dev) for k in range(3)]
+        gc = [g[k].clamp(0, self.dims[k] - 1) for k in range(3)]
+        flat = (gc[0][:, None, None] * self.dims[1] + gc[1][None, :, None]) * self.dims[2] + gc[2][None, None, :]
+        flat = flat.reshape(-1)
+        sdf = self.node_sdf.to(dev).reshape(-1)[flat]
+        inside = all(int(lo[k]) >= lo_t[k] and int(lo[k]) + int(D[k]) <= lo_t[k] + self.dims[k] for k in range(3))
+        if inside:
+            sdf = sdf + 0.0  # as at_nodes adds a zero distance (-0.0 becomes 0.0)
+        else:
+            o = [g[k] - gc[k] for k in range(3)]
+            off = torch.stack(
+                torch.broadcast_tensors(o[0][:, None, None], o[1][None, :, None], o[2][None, None, :]), -1
+            )
+            sdf = sdf + off.reshape(-1, 3).to(torch.float32).norm(dim=1) * self.dx
+        return sdf, self._unit_normals(dev)[flat]
 
     def sdf(self, points: Tensor) -> Tensor:
         """(N, 3) -> (N,) signed distance (< 0 inside), trilinear in the node table."""

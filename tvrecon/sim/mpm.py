@@ -188,6 +188,7 @@ class MLSMPM:
         self._last_transfer: Transfer | None = None  # the last step's transfer, for last_particle_force
         self.chunk_size = 4096  # particles per cache-sized block of the stencil passes (no-grad path); 0 = off
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
+        self._scenes_of: tuple[Tensor, int, int, int | None] | None = None  # (batch, its version, B, block)
 
     # ------------------------------------------------------------------ helpers
     def _constants(self, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
@@ -197,6 +198,24 @@ class MLSMPM:
             o_aug_t = torch.cat([torch.ones(27, 1, dtype=dtype, device=device), o], 1)  # (27, 4): [1, o]
             self._consts[key] = (o, o_aug_t, o.to(torch.int64))
         return self._consts[key]
+
+    def _scenes(self, batch: Tensor | None) -> tuple[int, int | None]:
+        """(B, block) of a state's ``batch``: the scene count and, when ``batch`` is the contiguous layout
+        ``arange(B).repeat_interleave(block)``, the particles per scene (else None; see ``block_layout``).
+
+        Remembered for the last ``batch`` tensor (and its in-place version counter): a press steps the same one."""
+        if batch is None:
+            return 1, None
+        c = self._scenes_of
+        if c is not None and c[0] is batch and c[1] == batch._version:
+            return c[2], c[3]
+        B = int(batch.max()) + 1
+        P = batch.shape[0]
+        block = P // B if P % B == 0 else None
+        if block is not None and not torch.equal(batch, torch.arange(B, device=batch.device).repeat_interleave(block)):
+            block = None
+        self._scenes_of = (batch, batch._version, B, block)
+        return B, block
 
     def _needs_grad(self, state: ParticleState, hand_velocity: Tensor | None, alpha: Tensor | None) -> bool:
         if not torch.is_grad_enabled():
@@ -234,7 +253,7 @@ class MLSMPM:
             alpha = torch.as_tensor(alpha, dtype=dtype, device=device)
             if alpha.shape != (P,):
                 raise ValueError(f"alpha must be a (P,) tensor with P={P}, got {tuple(alpha.shape)}")
-        B = state.num_scenes
+        B, block = self._scenes(state.batch)
         if collider is None or not isinstance(collider, Sequence):
             colliders: list[Collider | None] = [collider] * B
         else:
@@ -242,9 +261,9 @@ class MLSMPM:
             if len(colliders) != B:
                 raise ValueError(f"collider sequence must have one entry per scene (B={B}), got {len(colliders)}")
         if self._needs_grad(state, hand_velocity, alpha):
-            return self._step(state, colliders, hand_velocity, alpha, B)
+            return self._step(state, colliders, hand_velocity, alpha, B, block)
         with torch.no_grad():
-            return self._step(state, colliders, hand_velocity, alpha, B)
+            return self._step(state, colliders, hand_velocity, alpha, B, block)
 
     def _step(
         self,
@@ -253,20 +272,21 @@ class MLSMPM:
         hand_velocity: Tensor | None,
         alpha: Tensor | None,
         B: int,
+        block: int | None = None,
     ) -> ParticleState:
         """One step in the paper's order: P2G (eq. 5-6), grid velocity and colliders (eq. 7), G2P (eq. 8-11)."""
-        st = self._stencil(state, B)
+        st = self._stencil(state, B, block)
         grid = self._p2g(state, st)
         gv = self._grid_update(grid, colliders, st)
         return self._g2p(state, st, gv, hand_velocity, alpha)
 
-    def _stencil(self, state: ParticleState, B: int) -> Stencil:
+    def _stencil(self, state: ParticleState, B: int, block: int | None = None) -> Stencil:
         """Particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights."""
         x = state.x
         P = x.shape[0]
         Xg = x * self.inv_dx
         base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
-        lo, lin, D = block_layout(base_f, state.batch, B)
+        lo, lin, D = block_layout(base_f, state.batch, B, block)
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
         # channel-first layouts (..., P) below: every big elementwise op runs over contiguous particle rows
         fxt = fx.T.contiguous()  # (3, P)

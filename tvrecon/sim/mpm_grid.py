@@ -66,8 +66,14 @@ def shift_nodes(t: Tensor, s: int) -> Tensor:
     return torch.nn.functional.pad(t, (s, -s))
 
 
-def block_layout(base_f: Tensor, batch: Tensor | None, B: int) -> tuple[Tensor, Tensor, list[int]]:
+def block_layout(
+    base_f: Tensor, batch: Tensor | None, B: int, block: int | None = None
+) -> tuple[Tensor, Tensor, list[int]]:
     """Local grid blocks of the particles' base nodes ``base_f`` (P, 3) (float, whole numbers).
+
+    ``block``: particles per scene when ``batch`` is the contiguous layout ``arange(B).repeat_interleave(block)``
+    (as :class:`tvrecon.sim.press_run.PressLoop` builds it): the per-scene bounds are then plain reductions over a
+    ``(B, block, 3)`` view instead of a scatter (same values: min and max are exact). None: any ``batch``.
 
     Returns the per-scene origin lo (B, 3) int64, the linear node index of each particle's base node (P,) and the
     block dims D [3]. Raises FloatingPointError on a non-finite or exploded state.
@@ -75,6 +81,8 @@ def block_layout(base_f: Tensor, batch: Tensor | None, B: int) -> tuple[Tensor, 
     if batch is None:
         lo_f = base_f.amin(0, keepdim=True)
         hi_f = base_f.amax(0, keepdim=True)
+    elif block is not None:
+        lo_f, hi_f = torch.aminmax(base_f.reshape(B, block, 3), dim=1)
     else:
         idx = batch[:, None].expand(-1, 3)
         lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
@@ -84,14 +92,21 @@ def block_layout(base_f: Tensor, batch: Tensor | None, B: int) -> tuple[Tensor, 
     if not all(math.isfinite(b) for b in bounds):
         raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {FIX_HINT}")
     D = [int(d) for d in bounds[:3]]
-    if B * D[0] * D[1] * D[2] > MAX_GRID_NODES:
+    nb = D[0] * D[1] * D[2]
+    if B * nb > MAX_GRID_NODES:
         raise FloatingPointError(f"MPM state exploded: particles spread over {D} grid cells per scene; {FIX_HINT}")
     lo = lo_f.to(torch.int64)  # (B, 3)
     base = base_f.to(torch.int64)
-    local = base - (lo if batch is None else lo[batch])  # (P, 3)
+    if batch is not None and block is not None:
+        local = (base.view(B, block, 3) - lo[:, None]).view(-1, 3)
+    else:
+        local = base - (lo if batch is None else lo[batch])  # (P, 3)
     lin = (local[:, 0] * D[1] + local[:, 1]) * D[2] + local[:, 2]
     if batch is not None:
-        lin = lin + batch * (D[0] * D[1] * D[2])
+        if block is not None:
+            lin = (lin.view(B, block) + torch.arange(B, device=lin.device)[:, None] * nb).view(-1)
+        else:
+            lin = lin + batch * nb
     return lo, lin, D
 
 
