@@ -7,6 +7,11 @@ steps with the CFL time step. Runs ``tvrecon.sim.mpm.MLSMPM`` through its public
 particle-steps/s of both, their ratio, peak memory (max RSS) and the max abs difference of final positions.
 
     .venv/bin/python benchmarks/bench_sim.py [--steps 200] [--repeats 2] [--threads N] [--skip-reference]
+
+``--compile`` instead compares the eager step with ``MLSMPM(compile=True)`` (the fused ``torch.compile`` kernels,
+issue 13 step 2) in this one process: compile time (the first steps) reported apart, then ``--repeats`` timed runs of
+each, alternating which goes first, and the eager / compiled ratio of particle-steps per CPU-second (the median of
+the per-pair ratios: robust on a loaded machine), with the max |x, v, C, F| differences after ``--steps`` steps.
 """
 
 from __future__ import annotations
@@ -48,15 +53,51 @@ def press_scene(nx: int = 48, ny: int = 48, nz: int = 12, n_grid: int = N_GRID) 
     return x.float(), alpha, hand, h**3
 
 
-def run_ours(steps: int) -> tuple[float, float, torch.Tensor, torch.Tensor]:
+def run_ours(steps: int, compile: bool = False, full: bool = False):
     x, alpha, hand, vol = press_scene()
-    solver = MLSMPM(MPMConfig(n_grid=N_GRID))
+    solver = MLSMPM(MPMConfig(n_grid=N_GRID), compile=compile)
     state = ParticleState.create(x, None, volume=vol)
     col = SphereCollider(SPHERE_CENTER, SPHERE_RADIUS)
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(steps):
         state = solver.step(state, collider=col, hand_velocity=hand, alpha=alpha)
-    return time.perf_counter() - t0, time.process_time() - c0, state.x, solver.last_force[0]
+    if compile and not solver.compiled:
+        raise RuntimeError("torch.compile failed: the compiled run fell back to eager (see the warning)")
+    return time.perf_counter() - t0, time.process_time() - c0, state if full else state.x, solver.last_force[0]
+
+
+def compare_compile(steps: int, repeats: int) -> None:
+    """Eager vs ``MLSMPM(compile=True)`` in one process, interleaved (see the module docstring)."""
+    P = 48 * 48 * 12
+    run_ours(5)  # eager warm-up
+    el, cpu, _, _ = run_ours(5, compile=True)  # compiles the four kernels (inductor's on-disk cache may help)
+    print(f"compile: first 5 compiled steps took {el:.1f} s wall, {cpu:.1f} CPU-s (compile time, excluded below)")
+    ratios, eager, comp = [], [], []
+    for r in range(repeats):
+        order = (False, True) if r % 2 == 0 else (True, False)
+        res = {c: run_ours(steps, compile=c, full=True) for c in order}
+        eager.append(res[False])
+        comp.append(res[True])
+        ratios.append(res[False][1] / res[True][1])
+        print(
+            f"  pair {r}: eager {res[False][1]:.2f} CPU-s, compiled {res[True][1]:.2f} CPU-s, "
+            f"ratio {ratios[-1]:.3f} (first: {'compiled' if order[0] else 'eager'})"
+        )
+    ratios.sort()
+    med = (
+        ratios[len(ratios) // 2] if len(ratios) % 2 else 0.5 * (ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2])
+    )
+    best_e, best_c = min(e[1] for e in eager), min(c[1] for c in comp)
+    print(
+        f"eager:    {P * steps / best_e / 1e6:.3f} M particle-steps per CPU-second (best of {repeats})\n"
+        f"compiled: {P * steps / best_c / 1e6:.3f} M particle-steps per CPU-second (best of {repeats})\n"
+        f"speed-up compiled / eager: median {med:.3f}x of {repeats} interleaved pairs, best/best {best_e / best_c:.3f}x"
+    )
+    se, sc = eager[-1][2], comp[-1][2]
+    diffs = ", ".join(f"{n} {(getattr(sc, n) - getattr(se, n)).abs().max().item():.3g}" for n in ("x", "v", "C", "F"))
+    print(
+        f"after {steps} steps, max |compiled - eager|: {diffs}; force {comp[-1][3].tolist()} vs {eager[-1][3].tolist()}"
+    )
 
 
 def run_reference(steps: int, dt: float) -> tuple[float, float, torch.Tensor, torch.Tensor]:
@@ -85,6 +126,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2, help="timed runs of our solver (best is reported)")
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     ap.add_argument("--skip-reference", action="store_true")
+    ap.add_argument("--compile", action="store_true", help="compare eager with MLSMPM(compile=True) instead")
     args = ap.parse_args()
     if args.threads > 0:
         torch.set_num_threads(args.threads)
@@ -94,6 +136,9 @@ def main() -> None:
         f"scene: P={P} particles, n_grid={N_GRID}, dt={dt:.4g} (CFL), steps={args.steps}, "
         f"threads={torch.get_num_threads()}"
     )
+    if args.compile:
+        compare_compile(args.steps, args.repeats)
+        return
     run_ours(5)  # warm-up
     runs = [run_ours(args.steps) for _ in range(args.repeats)]
     best = min(runs, key=lambda r: r[0])

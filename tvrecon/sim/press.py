@@ -138,14 +138,22 @@ class EIPSimulator:
         sensor: pad geometry and material (default :class:`SensorConfig`).
         press: press protocol (default :class:`PressConfig`).
         device: torch device of the simulation.
+        compile: run the solver's no-grad steps with the fused ``torch.compile`` kernels (``MLSMPM(compile=...)``;
+            None -> the ``TVRECON_COMPILE`` environment variable). A speed option, deliberately not a config field:
+            readings equal the eager ones to float32 round-off, so it stays out of the data cache key.
     """
 
     def __init__(
-        self, sensor: SensorConfig | None = None, press: PressConfig | None = None, device: torch.device | str = "cpu"
+        self,
+        sensor: SensorConfig | None = None,
+        press: PressConfig | None = None,
+        device: torch.device | str = "cpu",
+        compile: bool | None = None,
     ) -> None:
         self.sensor = sensor if sensor is not None else SensorConfig()
         self.cfg = press if press is not None else PressConfig()
         self.device = torch.device(device)
+        self.compile = compile
 
     # ------------------------------------------------------------------ configuration
     def _configs(self, overrides: dict) -> tuple[SensorConfig, PressConfig]:
@@ -277,4 +285,4 @@ class EIPSimulator:
         """Step the placed touches together until each is done (:class:`~tvrecon.sim.press_run.PressLoop`)."""
         mcfg = self._mpm_config(s, p)
         speed = p.speed if p.speed is not None else float(p.speed_fraction) * self.wave_speed(s)
-        return PressLoop(s, p, mcfg, speed, self.device).run(touches)
+        return PressLoop(s, p, mcfg, speed, self.device, compile=self.compile).run(touches)

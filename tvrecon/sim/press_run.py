@@ -139,8 +139,17 @@ class TouchRun:
 class PressLoop:
     """The shared solver loop over T placed touches (``EIPSimulator.press_batch`` builds and runs one)."""
 
-    def __init__(self, s: SensorConfig, p: PressConfig, mcfg: MPMConfig, speed, device: torch.device) -> None:
+    def __init__(
+        self,
+        s: SensorConfig,
+        p: PressConfig,
+        mcfg: MPMConfig,
+        speed,
+        device: torch.device,
+        compile: bool | None = None,
+    ) -> None:
         self.s, self.p, self.mcfg, self.speed, self.device = s, p, mcfg, speed, device
+        self.compile = compile  # MLSMPM(compile=...): fused no-grad steps, equal to round-off; not in any cache key
         self.H, self.W = s.resolution
         self.HW, self.dx = self.H * self.W, 1.0 / int(p.n_grid)
         self.dt = float(mcfg.dt)
@@ -189,7 +198,7 @@ class PressLoop:
         )
         # the back layer is glued to the rigid, heavy mount (see SensorConfig.mount_mass)
         state = dataclasses.replace(state, mass=state.mass * mass_scale(s, device=dev).repeat(B))
-        solver = MLSMPM(self.mcfg, device=dev)
+        solver = MLSMPM(self.mcfg, device=dev, compile=self.compile)
         x0_contact = self.x0_contact = x_rest[:HW] / dx  # (HW, 3) cells
         lattice = (H, W, float(s.spacing))
         total = self.max_steps + int(p.release_steps)

@@ -1,0 +1,256 @@
+"""Opt-in fused per-particle kernels of :class:`tvrecon.sim.mpm.MLSMPM` (issue 13 step 2), built with ``torch.compile``.
+
+The eager step runs ~60 small kernels per step. The per-particle arithmetic between the grid transfers is written
+here once more as plain elementwise torch (3x3 matrices as nine ``(P,)`` rows, no ``matmul``, no data-dependent
+control flow) so that inductor fuses each function into a few loops (C++/OpenMP on CPU, Triton on GPU). Every
+per-particle tensor is channel-first, ``(3, P)`` / ``(9, P)`` contiguous: inductor's C++ backend vectorizes a loop
+only when its loads and stores are contiguous along the particles (``(P, 3, 3)`` rows give scalar loops).
+
+- :func:`stencil_weights`: ``base``, ``fx`` and the 27 quadratic B-spline weights;
+- :func:`polar_fixed`: the scaled Newton polar decomposition of :func:`tvrecon.sim.materials.polar_decomposition`,
+  a fixed number of iterations with a per-particle stop (a particle keeps the iterate at which its step fell below
+  the tolerance, as in the eager loop); it also returns whether every particle converged, else the caller falls
+  back to the eager iteration;
+- :func:`p2g_contrib`: fixed-corotated Kirchhoff stress (paper eq. 4), the affine momentum matrix of eq. 6 and each
+  particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` (the ``index_add`` scatter stays eager);
+- :func:`g2p_update`: the gather of the 27 node velocities (fused: no ``(81, P)`` intermediate), the APIC sums and
+  the particle update of eq. 8-11 (C, v, x, F).
+
+Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
+The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
+per-batch Newton stop); ``tests/sim/test_mpm_compile.py`` checks it.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "NEWTON_ITERS",
+    "CompileFailed",
+    "CompiledKernels",
+    "compiled_kernels",
+    "stencil_weights",
+    "polar_fixed",
+    "p2g_contrib",
+    "g2p_update",
+]
+
+log = logging.getLogger(__name__)
+
+#: fixed Newton iterations of :func:`polar_fixed` (eager needs 1 at F = R, ~3 for |sigma - 1| ~ 0.1); a step where a
+#: particle has not converged after them recomputes R with the eager loop.
+NEWTON_ITERS = 4
+
+_OFFS = [(i, j, k) for i in range(3) for j in range(3) for k in range(3)]  # stencil offsets, i slowest
+
+
+def _cof(X: list[Tensor]) -> list[Tensor]:
+    """Cofactor matrix (det(X) X^-T) of nine rows, row-major (rows r1 x r2, r2 x r0, r0 x r1)."""
+    x00, x01, x02, x10, x11, x12, x20, x21, x22 = X
+    return [
+        x11 * x22 - x12 * x21,
+        x12 * x20 - x10 * x22,
+        x10 * x21 - x11 * x20,
+        x21 * x02 - x22 * x01,
+        x22 * x00 - x20 * x02,
+        x20 * x01 - x21 * x00,
+        x01 * x12 - x02 * x11,
+        x02 * x10 - x00 * x12,
+        x00 * x11 - x01 * x10,
+    ]
+
+
+def _mm(A: list[Tensor], B: list[Tensor], bt: bool = False) -> list[Tensor]:
+    """A @ B (or A @ B^T) of row-major nine-row matrices."""
+    if bt:
+        return [
+            A[3 * a] * B[3 * b] + A[3 * a + 1] * B[3 * b + 1] + A[3 * a + 2] * B[3 * b + 2]
+            for a in range(3)
+            for b in range(3)
+        ]
+    return [A[3 * a] * B[b] + A[3 * a + 1] * B[3 + b] + A[3 * a + 2] * B[6 + b] for a in range(3) for b in range(3)]
+
+
+def stencil_weights(xt: Tensor, inv_dx: float) -> tuple[Tensor, Tensor, Tensor]:
+    """From positions xt (3, P): ``base_f = floor(x/dx - 0.5)`` (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P)."""
+    Xg = xt * inv_dx
+    base_f = torch.floor(Xg - 0.5)
+    fx = Xg - base_f
+    wa = [(0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2) for f in fx]
+    w = torch.stack([wa[0][i] * wa[1][j] * wa[2][k] for i, j, k in _OFFS], 0)
+    return base_f, fx, w
+
+
+def polar_fixed(Ft: Tensor, stop: float, n_iter: int = NEWTON_ITERS) -> tuple[Tensor, Tensor]:
+    """R of F = R S by ``n_iter`` scaled Newton steps, each particle frozen once its step is below ``stop``.
+
+    Ft: (9, P) entries of F, row-major. Returns R as (9, P) and a 0-dim bool: every particle converged (False also
+    when a step was not finite).
+    """
+    X = list(Ft.unbind(0))
+    done = torch.zeros_like(X[0], dtype=torch.bool)
+    for _ in range(n_iter):
+        cof = _cof(X)
+        det = X[0] * cof[0] + X[1] * cof[1] + X[2] * cof[2]
+        inv_t = [c / det for c in cof]
+        n_inv = sum(c * c for c in inv_t)
+        n_x = sum(e * e for e in X)
+        gs = (n_inv / n_x).pow(0.25)
+        X_new = [0.5 * (gs * e + c / gs) for e, c in zip(X, inv_t)]
+        delta = (X_new[0] - X[0]).abs()
+        for e, en in zip(X[1:], X_new[1:]):
+            delta = torch.maximum(delta, (en - e).abs())
+        X = [torch.where(done, e, en) for e, en in zip(X, X_new)]
+        done = done | (delta < stop)
+    return torch.stack(X, 0), done.all()  # a NaN step never counts as converged
+
+
+def p2g_contrib(
+    Ft: Tensor,
+    Rt: Tensor,
+    Ct: Tensor,
+    vt: Tensor,
+    fx: Tensor,
+    m: Tensor,
+    vol: Tensor,
+    w: Tensor,
+    mu: float,
+    lam: float,
+    dt: float,
+    dx: float,
+    inv_dx: float,
+) -> Tensor:
+    """Per particle ``w_o [m, m v + A (o - fx) dx]`` for the 27 offsets o: the (108, P) scatter rows of eq. 5-6.
+
+    Channel-first inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,), w (27, P).
+    ``A = m C - (4 dt V0 / dx^2) tau`` with the fixed-corotated Kirchhoff stress
+    ``tau = 2 mu (F - R) F^T + lam (J - 1) J I`` (rows c = mass, momentum x, y, z; then offset o, as the eager P2G).
+    """
+    Fr, Rr, Cr = Ft.unbind(0), Rt.unbind(0), Ct.unbind(0)
+    cof = _cof(Fr)
+    J = Fr[0] * cof[0] + Fr[1] * cof[1] + Fr[2] * cof[2]
+    tau = _mm([2.0 * mu * (f - r) for f, r in zip(Fr, Rr)], Fr, bt=True)
+    p = lam * (J - 1.0) * J
+    tau = [t + p if e in (0, 4, 8) else t for e, t in enumerate(tau)]
+    gamma = (4.0 * dt * inv_dx * inv_dx) * vol
+    A = [m * c - gamma * t for c, t in zip(Cr, tau)]
+    f0, f1, f2 = fx.unbind(0)
+    # momentum at offset o: m v + dx A (o - fx) = mv0 + dx (A o)
+    mv0 = [m * vt[a] - dx * (A[3 * a] * f0 + A[3 * a + 1] * f1 + A[3 * a + 2] * f2) for a in range(3)]
+    dA = [dx * e for e in A]
+    rows = [w[o] * m for o in range(27)]
+    for a in range(3):
+        for o, (i, j, k) in enumerate(_OFFS):
+            rows.append(w[o] * (mv0[a] + i * dA[3 * a] + j * dA[3 * a + 1] + k * dA[3 * a + 2]))
+    return torch.stack(rows, 0)
+
+
+def g2p_update(
+    H: Tensor,
+    lin: Tensor,
+    w: Tensor,
+    fx: Tensor,
+    xt: Tensor,
+    Ft: Tensor,
+    alpha: Tensor | None,
+    hvt: Tensor | None,
+    dt: float,
+    inv_dx: float,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Gather v(base + o) from the (81, N) table H, then paper eq. 8-11.
+
+    Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P), C, F (9, P).
+    """
+    g = H[:, lin]  # (81, P): fused into the sums below by inductor
+    S = []  # S[c] = [sum_o w v_c, sum_o w v_c o_i, ... o_j, ... o_k]
+    for c in range(3):
+        t = [w[o] * g[27 * c + o] for o in range(27)]
+        row = [sum(t)]
+        for ax in range(3):
+            row.append(
+                sum(t[o] for o, off in enumerate(_OFFS) if off[ax] == 1)
+                + 2.0 * sum(t[o] for o, off in enumerate(_OFFS) if off[ax] == 2)
+            )
+        S.append(row)
+    v_pic = [S[c][0] for c in range(3)]
+    Cn = [(4.0 * inv_dx) * (S[a][1 + b] - v_pic[a] * fx[b]) for a in range(3) for b in range(3)]
+    if alpha is None:
+        v_new = v_pic
+    elif hvt is None:
+        v_new = [alpha * vp for vp in v_pic]
+    else:
+        v_new = [alpha * v_pic[a] + (1.0 - alpha) * hvt[a] for a in range(3)]
+    x_new = torch.stack([xt[a] + dt * v_new[a] for a in range(3)], 0)
+    Fr = Ft.unbind(0)
+    CF = _mm(Cn, Fr)
+    F_new = torch.stack([f + dt * cf for f, cf in zip(Fr, CF)], 0)
+    return x_new, torch.stack(v_new, 0), torch.stack(Cn, 0), F_new
+
+
+# per kernel, the dimension of each positional argument that varies (the particle or node count; None: not a tensor
+# or fixed). Only these are marked dynamic: ``dynamic=True`` would also make the 3s and 9s symbolic, and inductor
+# then emits scalar (unvectorized) loops with symbolic strides.
+_DYN_DIMS: dict[str, tuple[int | None, ...]] = {
+    "stencil": (1,),
+    "polar": (1,),
+    "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
+    "g2p": (1, 0, 1, 1, 1, 1, 0, 1),
+}
+
+
+class CompiledKernels:
+    """The four functions above wrapped in ``torch.compile`` with dynamic particle / node counts (they vary from step
+    to step and press to press; the 3x3 sizes stay static).
+
+    ``kernels(name, *args)`` calls one; the first failure (no C++ compiler, an inductor error) is logged, warned once,
+    marks the kernels failed (:func:`compiled_kernels` then returns None) and raises :class:`CompileFailed` so that
+    the solver falls back to its eager step for good.
+    """
+
+    failed = False
+
+    def __init__(self) -> None:
+        self._fns: dict[str, Callable] = {
+            name: torch.compile(f)
+            for name, f in (
+                ("stencil", stencil_weights),
+                ("polar", polar_fixed),
+                ("p2g", p2g_contrib),
+                ("g2p", g2p_update),
+            )
+        }
+
+    def __call__(self, name: str, *args):
+        try:
+            for a, d in zip(args, _DYN_DIMS[name]):
+                if d is not None and isinstance(a, Tensor) and a.dim() > d:
+                    torch._dynamo.maybe_mark_dynamic(a, d)
+            return self._fns[name](*args)
+        except Exception as e:  # noqa: BLE001 - any compile/runtime failure -> eager fallback
+            msg = f"torch.compile of the MLS-MPM kernel {name!r} failed ({type(e).__name__}: {e}); using the eager step"
+            log.warning(msg)
+            warnings.warn(msg, RuntimeWarning, stacklevel=3)
+            self.failed = True
+            raise CompileFailed(msg) from e
+
+
+_KERNELS: CompiledKernels | None = None
+
+
+def compiled_kernels() -> CompiledKernels | None:
+    """The process-wide compiled kernels (one set, so every solver and press shares the compiled code), or None
+    once compiling has failed."""
+    global _KERNELS
+    if _KERNELS is None:
+        _KERNELS = CompiledKernels()
+    return None if _KERNELS.failed else _KERNELS
+
+
+class CompileFailed(RuntimeError):
+    """A compiled kernel could not be built or run; the solver goes on with its eager step."""
