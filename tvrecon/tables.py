@@ -74,7 +74,7 @@ ROW_ORDER: tuple[str, ...] = (
     "touch_geometry",
     "smoke",
 )
-VISUAL_FOOTNOTE = "* fusion model evaluated with every touch masked out (no tactile input)."
+VISUAL_FOOTNOTE = "* a model that reads touches (fusion, touch geometry) evaluated with every touch masked out."
 
 
 @dataclass
