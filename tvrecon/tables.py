@@ -375,6 +375,11 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
             tables["fscore"] = build_fscore_table(results)
         if any(":" in m for r in results if r["task"] == "reconstruction" for m in r["modes"]):
             tables["touch_controls"] = build_touch_controls(results)
+        from tvrecon.seed_summary import build_seed_summary  # imports this module
+
+        seeds = build_seed_summary(results)
+        if seeds.rows:
+            tables["seeds"] = seeds
     if any(r["task"] == "classification" for r in results):
         tables["table2"] = build_table2(results)
     return tables
@@ -393,7 +398,7 @@ def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]
 
 def format_tables(tables: Mapping[str, Table]) -> str:
     """All tables as one Markdown text (Table 2, then 3, then 4, then the touch controls)."""
-    order = ["table2", "table3", "table4", "fscore", "touch_controls"]
+    order = ["table2", "table3", "seeds", "table4", "fscore", "touch_controls"]
     keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
     return "\n".join(tables[k].to_markdown() for k in keys)
 
