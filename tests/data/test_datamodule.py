@@ -31,7 +31,7 @@ def _dm(preset: str, cache: Path, overrides: list[str]):
 
 def test_every_preset_composes_and_instantiates(tmp_path: Path):
     names = preset_names()
-    assert {"tiny", "small", "paper", "cls_tiny", "cls_small", "cls_paper"} <= set(names)
+    assert {"tiny", "small", "paper", "cls_tiny", "cls_small", "cls_paper", "cls_paper_cpu"} <= set(names)
     for name in names:
         dm = _dm(name, tmp_path, [])
         assert isinstance(dm, ReconstructionDataModule | ClassificationDataModule)
@@ -50,6 +50,26 @@ def test_paper_presets_match_table1():
     assert cls["test"] == TABLE1["classification"]["test"] == SplitSize(35, 1500, 0)
     small = split_sizes(compose_preset("small"))
     assert small["train"].classes == 10 and small["train"].tactile < 2000
+
+
+def test_cls_paper_cpu_has_table1_sizes_and_many_objects_per_class():
+    """The CPU classification preset (issue 12): Table 1's image counts, a validation split, 15-16 train and 4-5
+    test objects of every class (none shared between splits), tactile maps at the pad's resolution."""
+    cfg = compose_preset("cls_paper_cpu", ["cache_dir=null"])
+    sizes = split_sizes(cfg)
+    assert sizes["train"] == TABLE1["classification"]["train"] == SplitSize(35, 5500, 0)
+    assert sizes["test"] == TABLE1["classification"]["test"] == SplitSize(35, 1500, 0)
+    assert sizes["val"] == SplitSize(35, 700, 0)
+    assert [cfg.tactile_size] * 2 == list(cfg.sensor.resolution) == [32, 32]  # no upsampling of the pad
+    dm = instantiate(cfg, _convert_="all")
+    per_class = {}
+    for split, (lo, hi) in {"train": (15, 16), "val": (2, 2), "test": (4, 5)}.items():
+        ds = dm.make_dataset(split)
+        objects = [ds.object_of(i) for i in range(len(ds))]
+        counts = {c: sum(o[0] == c for o in objects) for c in ds.library.classes}
+        assert len(counts) == 35 and lo == min(counts.values()) and max(counts.values()) == hi, (split, counts)
+        per_class[split] = {(c, ds.library.params(c, k, split)["seed"]) for c, k in objects}
+    assert not per_class["train"] & per_class["test"] and not per_class["train"] & per_class["val"]
 
 
 def test_reconstruction_batches_have_documented_shapes(tmp_path: Path):

@@ -5,7 +5,8 @@ composes it (``data=<preset>`` in ``configs/train.yaml``) and as ``python -m tvr
 (:func:`tvrecon.data.presets.compose_preset`), plus the ``data`` node of every experiment. It was written before the
 presets were split into config groups (issue 16 item 6), so the composed presets are proven to give the same values.
 The one intended difference is ``touch._target_``, added when touch policies became pluggable (issue 16 item 5): it
-names the default policy, whose cache key it does not enter.
+names the default policy, whose cache key it does not enter. Presets added later (``cls_paper_cpu``, issue 12) were
+written into the fixture the same way, without ``touch._target_``, and their other presets' entries left untouched.
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update
@@ -36,7 +37,7 @@ CONFIGS = ROOT / "configs"
 FIXTURES = Path(__file__).parent / "fixtures"
 PRESETS_FIXTURE = FIXTURES / "data_presets.json"
 KEYS_FIXTURE = FIXTURES / "data_cache_keys.json"
-PRESETS = ["cls_paper", "cls_small", "cls_tiny", "paper", "small", "tiny"]
+PRESETS = ["cls_paper", "cls_paper_cpu", "cls_small", "cls_tiny", "paper", "small", "tiny"]
 EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
 
 

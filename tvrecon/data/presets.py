@@ -6,8 +6,8 @@ of blocks in config groups under ``configs/data/``: ``base/`` (datamodule settin
 ``cone``), plus its own split sizes and resolutions; one block can be swapped from the command line
 (``data/sensor=paper``, or ``sensor=paper`` with :func:`compose_preset`). This module holds the
 paper's numbers, counts what a datamodule config generates (:func:`split_sizes`) so tests can check that
-``paper.yaml`` / ``cls_paper.yaml`` reproduce Table 1, and composes a preset by name (:func:`compose_preset`) for the
-``generate`` CLI.
+``paper.yaml`` / ``cls_paper.yaml`` / ``cls_paper_cpu.yaml`` reproduce Table 1, and composes a preset by name
+(:func:`compose_preset`) for the ``generate`` CLI.
 
 Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
 
@@ -16,6 +16,10 @@ Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
   64 x 64 sensor pad on a 128^3 grid.
 - ``small``: a CPU-sized version (10 reconstruction classes, lower sensor and image resolution) that generates in
   about 10 to 20 minutes and trains in about an hour on 2 cores.
+- ``cls_paper_cpu``: the classification split sizes of Table 1 (5,500 / 1,500 images, plus 700 validation) with a
+  32 x 32 pad on a 64^3 grid (the paper's touch geometry at half its resolution) and 32 px tactile maps, so that
+  2 CPU cores generate it in about 15 minutes (``configs/data/cls_paper_cpu.yaml`` says why each value was chosen,
+  ``docs/cls-preset.md`` how it was measured).
 - ``tiny``: a few objects of 3 classes with a 16 x 16 pad on a 64^3 grid and 64 px views, for tests and the smoke
   experiment.
 """
