@@ -399,3 +399,18 @@ def test_stop_rules_are_an_ordered_list_and_depth_raises_max_depth_explicitly() 
     assert travel_for_depth(p).max_depth == 5.5 and p.max_depth == 4.0  # a copy, raised by the margin
     assert travel_for_depth(PressConfig(depth=1.0)).max_depth == 4.0
     assert EIPSimulator()._configs({"depth": 5.0})[1].max_depth == 5.5
+
+
+def test_press_under_inference_mode_equals_the_plain_press(sim: EIPSimulator) -> None:
+    """Data generated inside a Lightning test runs under torch.inference_mode, whose tensors have no version
+    counter: the press must work there (it crashed when the solver remembered its batch tensor by version) and give
+    the same readings."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.2).apply_translation([0.5, 0.5, 0.5])
+    positions = [[0.5, 0.5, 0.7], [0.7, 0.5, 0.5]]
+    directions = [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+    plain = sim.press_batch(mesh, positions, directions)
+    with torch.inference_mode():
+        inferred = sim.press_batch(mesh, positions, directions)
+    for a, b in zip(plain, inferred, strict=True):
+        assert a.steps == b.steps
+        assert torch.equal(a.image, b.image)

@@ -240,18 +240,22 @@ class MLSMPM:
         """(B, block) of a state's ``batch``: the scene count and, when ``batch`` is the contiguous layout
         ``arange(B).repeat_interleave(block)``, the particles per scene (else None; see ``block_layout``).
 
-        Remembered for the last ``batch`` tensor (and its in-place version counter): a press steps the same one."""
+        Remembered for the last ``batch`` tensor (and its in-place version counter): a press steps the same one.
+        Inference tensors (made under ``torch.inference_mode``, e.g. data generated inside a Lightning test) have no
+        version counter, so they are never remembered."""
         if batch is None:
             return 1, None
+        version = None if batch.is_inference() else batch._version
         c = self._scenes_of
-        if c is not None and c[0] is batch and c[1] == batch._version:
+        if c is not None and version is not None and c[0] is batch and c[1] == version:
             return c[2], c[3]
         B = int(batch.max()) + 1
         P = batch.shape[0]
         block = P // B if P % B == 0 else None
         if block is not None and not torch.equal(batch, torch.arange(B, device=batch.device).repeat_interleave(block)):
             block = None
-        self._scenes_of = (batch, batch._version, B, block)
+        if version is not None:
+            self._scenes_of = (batch, version, B, block)
         return B, block
 
     def _needs_grad(self, state: ParticleState, hand_velocity: Tensor | None, alpha: Tensor | None) -> bool:
