@@ -155,25 +155,6 @@ class ParticleState:
         return 1 if self.batch is None else int(self.batch.max()) + 1
 
 
-#: the compiled step returns its (P, 3) / (P, 3, 3) state tensors as views of its channel-first (3, P) / (9, P)
-#: buffers (same values, transposed strides), so that the next compiled step reads them without a copy. False:
-#: contiguous copies (the eager layout).
-CF_VIEWS = True
-
-
-def _cf_state(state: ParticleState, xt: Tensor, vt: Tensor, Ct: Tensor, Ft: Tensor) -> ParticleState:
-    P = xt.shape[1]
-    if CF_VIEWS:
-        return replace(state, x=xt.T, v=vt.T, C=Ct.T.view(P, 3, 3), F=Ft.T.view(P, 3, 3))
-    return replace(
-        state,
-        x=xt.T.contiguous(),
-        v=vt.T.contiguous(),
-        C=Ct.T.reshape(P, 3, 3).contiguous(),
-        F=Ft.T.reshape(P, 3, 3).contiguous(),
-    )
-
-
 class MLSMPM:
     """MLS-MPM stepper implementing the simulator contract (paper eq. 5-11; naive twin: ``tvrecon.sim.reference``).
 
@@ -184,7 +165,7 @@ class MLSMPM:
             (:mod:`tvrecon.sim.mpm_compiled`; equal to the eager step to float32 round-off, not bit for bit). None
             (default) -> on when the environment variable ``TVRECON_COMPILE`` is ``1``. Steps that need autograd
             always run eager; when compiling fails the solver warns once and goes on eager. A compiled step returns
-            x, v, C, F as transposed views of channel-first buffers (same values, non-contiguous; ``CF_VIEWS``).
+            x, v, C, F as transposed views of channel-first buffers (same values; ``mpm_fused.CF_VIEWS``).
 
     After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
     (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;
@@ -337,58 +318,10 @@ class MLSMPM:
         B: int,
         block: int | None = None,
     ) -> ParticleState:
-        """The no-grad step with the per-particle parts fused by ``torch.compile`` (:mod:`.mpm_compiled`); the block
-        layout, the ``index_add_`` scatter, the grid update and the node shifts are the eager code."""
-        from .materials import polar_decomposition
+        """The no-grad step with the per-particle parts fused by ``torch.compile`` (:func:`.mpm_fused.fused_step`)."""
+        from .mpm_fused import fused_step
 
-        k = self._kernels
-        x = state.x
-        P = x.shape[0]
-        dtype, device = x.dtype, x.device
-        dx, inv_dx, dt = self.dx, self.inv_dx, self.dt
-        # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
-        xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
-        base_t, fx, w = k("stencil", xt, inv_dx)
-        lo, lin, D = block_layout(base_t.T, state.batch, B, block)
-        n_nodes = B * D[0] * D[1] * D[2]
-        st = Stencil(fx.T, w, lo, lin, D, n_nodes, self._chunk(P))
-
-        stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
-        Rt, converged = k("polar", Ft, stop)
-        if not bool(converged):  # rare: a particle needs more Newton steps (or F is singular: eager raises)
-            Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
-        mu, lam = float(self.mu), float(self.lam)
-        Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
-        S0, S1 = D[1] * D[2], D[2]
-        G = torch.zeros(108, n_nodes, dtype=dtype, device=device)
-        chunk = st.chunk
-        for s0 in range(0, P, chunk):
-            sl = slice(s0, s0 + chunk)
-            contrib = k(
-                "p2g", Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], state.mass[sl], state.volume[sl],
-                w[:, sl], mu, lam, dt, dx, inv_dx,
-            )  # fmt: skip
-            G.index_add_(1, lin[sl], contrib)
-        Gt = G.view(4, 3, 3, 3, n_nodes)
-        T = Gt[:, :, :, 0] + shift_nodes(Gt[:, :, :, 1], 1) + shift_nodes(Gt[:, :, :, 2], 2)
-        U = T[:, :, 0] + shift_nodes(T[:, :, 1], S1) + shift_nodes(T[:, :, 2], 2 * S1)
-        grid = U[:, 0] + shift_nodes(U[:, 1], S0) + shift_nodes(U[:, 2], 2 * S0)
-
-        gv = self._grid_update(grid, colliders, st)
-        gvc = gv.T
-        K1 = torch.stack([gvc, shift_nodes(gvc, -1), shift_nodes(gvc, -2)], 1)
-        K2 = torch.stack([K1, shift_nodes(K1, -S1), shift_nodes(K1, -2 * S1)], 1)
-        H = torch.stack([K2, shift_nodes(K2, -S0), shift_nodes(K2, -2 * S0)], 1).reshape(81, n_nodes)
-        if hand_velocity is None:
-            hvt = None
-        elif hand_velocity.dim() == 1:
-            hvt = hand_velocity[:, None]
-        else:
-            hvt = hand_velocity.T.contiguous()
-        if alpha is not None and hvt is None:
-            hvt = torch.zeros(3, 1, dtype=dtype, device=device)
-        xn, vn, Cn, Fn = k("g2p", H, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
-        return _cf_state(state, xn, vn, Cn, Fn)
+        return fused_step(self, state, colliders, hand_velocity, alpha, B, block)
 
     def _stencil(self, state: ParticleState, B: int, block: int | None = None) -> Stencil:
         """Particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights."""

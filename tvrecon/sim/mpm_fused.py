@@ -1,0 +1,104 @@
+"""The no-grad MLS-MPM step with the per-particle parts fused by ``torch.compile`` (opt-in: ``MLSMPM(compile=True)``
+or ``TVRECON_COMPILE=1``; kernels in :mod:`.mpm_compiled`).
+
+Same order as :meth:`tvrecon.sim.mpm.MLSMPM._step` (P2G, grid update, G2P: paper eq. 5-11); the block layout, the
+``index_add_`` scatter, the node shifts and the grid update (colliders) are the eager code. The state comes back as
+views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it without a copy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from .colliders import Collider
+from .materials import polar_decomposition
+from .mpm_grid import Stencil, block_layout, shift_nodes
+
+if TYPE_CHECKING:
+    from .mpm import MLSMPM, ParticleState
+
+__all__ = ["CF_VIEWS", "fused_step"]
+
+#: the compiled step returns its (P, 3) / (P, 3, 3) state tensors as views of its channel-first (3, P) / (9, P)
+#: buffers (same values, transposed strides), so that the next compiled step reads them without a copy. False:
+#: contiguous copies (the eager layout).
+CF_VIEWS = True
+
+
+def _cf_state(state: ParticleState, xt: Tensor, vt: Tensor, Ct: Tensor, Ft: Tensor) -> ParticleState:
+    P = xt.shape[1]
+    if CF_VIEWS:
+        return replace(state, x=xt.T, v=vt.T, C=Ct.T.view(P, 3, 3), F=Ft.T.view(P, 3, 3))
+    return replace(
+        state,
+        x=xt.T.contiguous(),
+        v=vt.T.contiguous(),
+        C=Ct.T.reshape(P, 3, 3).contiguous(),
+        F=Ft.T.reshape(P, 3, 3).contiguous(),
+    )
+
+
+def fused_step(
+    solver: MLSMPM,
+    state: ParticleState,
+    colliders: list[Collider | None],
+    hand_velocity: Tensor | None,
+    alpha: Tensor | None,
+    B: int,
+    block: int | None = None,
+) -> ParticleState:
+    """One no-grad step of ``solver`` with its compiled kernels (``solver._kernels``); arguments as
+    :meth:`tvrecon.sim.mpm.MLSMPM._step`. Returns the new state (x, v, C, F as channel-first views, see
+    ``CF_VIEWS``)."""
+    k = solver._kernels
+    x = state.x
+    P = x.shape[0]
+    dtype, device = x.dtype, x.device
+    dx, inv_dx, dt = solver.dx, solver.inv_dx, solver.dt
+    # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
+    xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
+    base_t, fx, w = k("stencil", xt, inv_dx)
+    lo, lin, D = block_layout(base_t.T, state.batch, B, block)
+    n_nodes = B * D[0] * D[1] * D[2]
+    st = Stencil(fx.T, w, lo, lin, D, n_nodes, solver._chunk(P))
+
+    stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
+    Rt, converged = k("polar", Ft, stop)
+    if not bool(converged):  # rare: a particle needs more Newton steps (or F is singular: eager raises)
+        Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
+    mu, lam = float(solver.mu), float(solver.lam)
+    Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
+    S0, S1 = D[1] * D[2], D[2]
+    G = torch.zeros(108, n_nodes, dtype=dtype, device=device)
+    chunk = st.chunk
+    for s0 in range(0, P, chunk):
+        sl = slice(s0, s0 + chunk)
+        contrib = k(
+            "p2g", Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], state.mass[sl], state.volume[sl],
+            w[:, sl], mu, lam, dt, dx, inv_dx,
+        )  # fmt: skip
+        G.index_add_(1, lin[sl], contrib)
+    Gt = G.view(4, 3, 3, 3, n_nodes)
+    T = Gt[:, :, :, 0] + shift_nodes(Gt[:, :, :, 1], 1) + shift_nodes(Gt[:, :, :, 2], 2)
+    U = T[:, :, 0] + shift_nodes(T[:, :, 1], S1) + shift_nodes(T[:, :, 2], 2 * S1)
+    grid = U[:, 0] + shift_nodes(U[:, 1], S0) + shift_nodes(U[:, 2], 2 * S0)
+
+    gv = solver._grid_update(grid, colliders, st)
+    gvc = gv.T
+    K1 = torch.stack([gvc, shift_nodes(gvc, -1), shift_nodes(gvc, -2)], 1)
+    K2 = torch.stack([K1, shift_nodes(K1, -S1), shift_nodes(K1, -2 * S1)], 1)
+    H = torch.stack([K2, shift_nodes(K2, -S0), shift_nodes(K2, -2 * S0)], 1).reshape(81, n_nodes)
+    if hand_velocity is None:
+        hvt = None
+    elif hand_velocity.dim() == 1:
+        hvt = hand_velocity[:, None]
+    else:
+        hvt = hand_velocity.T.contiguous()
+    if alpha is not None and hvt is None:
+        hvt = torch.zeros(3, 1, dtype=dtype, device=device)
+    xn, vn, Cn, Fn = k("g2p", H, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
+    return _cf_state(state, xn, vn, Cn, Fn)
