@@ -285,11 +285,12 @@ class MLSMPM:
         if self._needs_grad(state, hand_velocity, alpha):
             return self._step(state, colliders, hand_velocity, alpha, B, block)
         with torch.no_grad():
-            if self._kernels is not None:
+            if self._kernels is not None:  # opt-in fused per-particle kernels (compile=True)
                 from .mpm_compiled import CompileFailed
+                from .mpm_fused import fused_step
 
                 try:
-                    return self._step_fused(state, colliders, hand_velocity, alpha, B, block)
+                    return fused_step(self, state, colliders, hand_velocity, alpha, B, block)
                 except CompileFailed:
                     self._kernels = None  # warned once; eager from now on
             return self._step(state, colliders, hand_velocity, alpha, B, block)
@@ -308,20 +309,6 @@ class MLSMPM:
         grid = self._p2g(state, st)
         gv = self._grid_update(grid, colliders, st)
         return self._g2p(state, st, gv, hand_velocity, alpha)
-
-    def _step_fused(
-        self,
-        state: ParticleState,
-        colliders: list[Collider | None],
-        hand_velocity: Tensor | None,
-        alpha: Tensor | None,
-        B: int,
-        block: int | None = None,
-    ) -> ParticleState:
-        """The no-grad step with the per-particle parts fused by ``torch.compile`` (:func:`.mpm_fused.fused_step`)."""
-        from .mpm_fused import fused_step
-
-        return fused_step(self, state, colliders, hand_velocity, alpha, B, block)
 
     def _stencil(self, state: ParticleState, B: int, block: int | None = None) -> Stencil:
         """Particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights."""
