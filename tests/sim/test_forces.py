@@ -12,12 +12,7 @@ from tvrecon.sim.forces import column_force_field, field_total, normal_shear
 SPHERE = trimesh.creation.icosphere(subdivisions=3, radius=0.1)  # 3.2 cells: the contact covers part of the pad
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # see tests/conftest.py
 
 
 @pytest.fixture(scope="module")

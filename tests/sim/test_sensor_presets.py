@@ -28,12 +28,7 @@ NAMES = sorted(SENSOR_PRESETS)
 SENSOR_BLOCKS = Path(__file__).resolve().parents[2] / "configs" / "data" / "sensor"
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # see tests/conftest.py
 
 
 def test_the_common_sensors_are_there() -> None:

@@ -39,12 +39,7 @@ DOWN = [0.0, 0.0, -1.0]
 POSES = [(k, m) for k in range(4) for m in (False, True) if (k, m) != (0, False)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # float reductions in one order: the round-off of the measured tolerance
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # see tests/conftest.py
 
 
 def _box() -> trimesh.Trimesh:
