@@ -152,7 +152,8 @@ def p2g_contrib(
 
 
 def g2p_update(
-    H: Tensor,
+    gv: Tensor,
+    offs: Tensor,
     lin: Tensor,
     w: Tensor,
     fx: Tensor,
@@ -163,14 +164,16 @@ def g2p_update(
     dt: float,
     inv_dx: float,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Gather v(base + o) from the (81, N) table H, then paper eq. 8-11.
+    """Gather v(base + o) straight from the grid velocities, then paper eq. 8-11.
 
+    gv: (N, 3) grid velocities (node-major: a particle's 27 nodes are 9 runs of 3 neighbouring rows); offs: (27,)
+    int64 node-axis offset of each stencil node (``i S0 + j S1 + k``); lin: (P,) base node of each particle.
     Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P), C, F (9, P).
     """
-    g = H[:, lin]  # (81, P): fused into the sums below by inductor
+    g = gv[lin[None, :] + offs[:, None]]  # (27, P, 3): indirect loads fused into the sums below by inductor
     S = []  # S[c] = [sum_o w v_c, sum_o w v_c o_i, ... o_j, ... o_k]
     for c in range(3):
-        t = [w[o] * g[27 * c + o] for o in range(27)]
+        t = [w[o] * g[o, :, c] for o in range(27)]
         row = [sum(t)]
         for ax in range(3):
             row.append(
@@ -200,8 +203,13 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "stencil": (1,),
     "polar": (1,),
     "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
-    "g2p": (1, 0, 1, 1, 1, 1, 0, 1),
+    "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
 }
+
+
+#: inductor options of the kernels: no bounds check on the indirect loads of ``g2p_update`` (its node indices are
+#: inside the block by construction of ``mpm_grid.block_layout``: base .. base + 2 on every axis).
+_OPTIONS = {"assert_indirect_indexing": False}
 
 
 class CompiledKernels:
@@ -217,7 +225,7 @@ class CompiledKernels:
 
     def __init__(self) -> None:
         self._fns: dict[str, Callable] = {
-            name: torch.compile(f)
+            name: torch.compile(f, options=_OPTIONS)
             for name, f in (
                 ("stencil", stencil_weights),
                 ("polar", polar_fixed),

@@ -87,11 +87,9 @@ def fused_step(
     U = T[:, :, 0] + shift_nodes(T[:, :, 1], S1) + shift_nodes(T[:, :, 2], 2 * S1)
     grid = U[:, 0] + shift_nodes(U[:, 1], S0) + shift_nodes(U[:, 2], 2 * S0)
 
-    gv = solver._grid_update(grid, colliders, st)
-    gvc = gv.T
-    K1 = torch.stack([gvc, shift_nodes(gvc, -1), shift_nodes(gvc, -2)], 1)
-    K2 = torch.stack([K1, shift_nodes(K1, -S1), shift_nodes(K1, -2 * S1)], 1)
-    H = torch.stack([K2, shift_nodes(K2, -S0), shift_nodes(K2, -2 * S0)], 1).reshape(81, n_nodes)
+    gv = solver._grid_update(grid, colliders, st).contiguous()  # (N, 3)
+    o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
+    offs = o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2]  # (27,) their node-axis offsets
     if hand_velocity is None:
         hvt = None
     elif hand_velocity.dim() == 1:
@@ -100,5 +98,5 @@ def fused_step(
         hvt = hand_velocity.T.contiguous()
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
-    xn, vn, Cn, Fn = k("g2p", H, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
+    xn, vn, Cn, Fn = k("g2p", gv, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return _cf_state(state, xn, vn, Cn, Fn)
