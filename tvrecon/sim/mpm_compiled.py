@@ -38,6 +38,7 @@ __all__ = [
     "stencil_weights",
     "polar_fixed",
     "p2g_contrib",
+    "node_sums",
     "g2p_update",
 ]
 
@@ -126,7 +127,8 @@ def p2g_contrib(
     dx: float,
     inv_dx: float,
 ) -> Tensor:
-    """Per particle ``w_o [m, m v + A (o - fx) dx]`` for the 27 offsets o: the (108, P) scatter rows of eq. 5-6.
+    """Per particle ``w_o [m, m v + A (o - fx) dx]`` for the 27 offsets o: the (P, 108) scatter rows of eq. 5-6
+    (particle-major, so that ``index_add_`` along the nodes adds one contiguous row per particle).
 
     Channel-first inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,), w (27, P).
     ``A = m C - (4 dt V0 / dx^2) tau`` with the fixed-corotated Kirchhoff stress
@@ -148,7 +150,28 @@ def p2g_contrib(
     for a in range(3):
         for o, (i, j, k) in enumerate(_OFFS):
             rows.append(w[o] * (mv0[a] + i * dA[3 * a] + j * dA[3 * a + 1] + k * dA[3 * a + 2]))
-    return torch.stack(rows, 0)
+    return torch.stack(rows, 1)
+
+
+def node_sums(G: Tensor, S0: int, S1: int) -> Tensor:
+    """The 27 stencil offsets of the scattered rows summed onto their nodes: (N, 108) -> (4, N) [m_i, (m v)_i].
+
+    Row n of G holds, for the particles whose base node is n, the sums of ``w [m, m v + A (x_i - x_p)]`` per channel
+    c and offset o = (i, j, k) (column ``27 c + o``); node n gets ``sum_o G[n - (i S0 + j S1 + k), 27 c + o]`` (zero
+    where that row is before the block grid).
+    """
+    N = G.shape[0]
+    pad = 2 * S0 + 2 * S1 + 2
+    Gp = torch.nn.functional.pad(G, (0, 0, pad, 0))
+    out = []
+    for c in range(4):
+        acc = None
+        for o, (i, j, k) in enumerate(_OFFS):
+            s = pad - (i * S0 + j * S1 + k)
+            t = Gp[s : s + N, 27 * c + o]
+            acc = t if acc is None else acc + t
+        out.append(acc)
+    return torch.stack(out, 0)
 
 
 def g2p_update(
@@ -203,6 +226,7 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "stencil": (1,),
     "polar": (1,),
     "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
+    "sums": (0,),
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
 }
 
@@ -230,6 +254,7 @@ class CompiledKernels:
                 ("stencil", stencil_weights),
                 ("polar", polar_fixed),
                 ("p2g", p2g_contrib),
+                ("sums", node_sums),
                 ("g2p", g2p_update),
             )
         }

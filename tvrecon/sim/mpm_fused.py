@@ -16,7 +16,7 @@ from torch import Tensor
 
 from .colliders import Collider
 from .materials import polar_decomposition
-from .mpm_grid import Stencil, block_layout, shift_nodes
+from .mpm_grid import Stencil, block_layout
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
@@ -73,7 +73,7 @@ def fused_step(
     mu, lam = float(solver.mu), float(solver.lam)
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
-    G = torch.zeros(108, n_nodes, dtype=dtype, device=device)
+    G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
     chunk = st.chunk
     for s0 in range(0, P, chunk):
         sl = slice(s0, s0 + chunk)
@@ -81,11 +81,8 @@ def fused_step(
             "p2g", Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], state.mass[sl], state.volume[sl],
             w[:, sl], mu, lam, dt, dx, inv_dx,
         )  # fmt: skip
-        G.index_add_(1, lin[sl], contrib)
-    Gt = G.view(4, 3, 3, 3, n_nodes)
-    T = Gt[:, :, :, 0] + shift_nodes(Gt[:, :, :, 1], 1) + shift_nodes(Gt[:, :, :, 2], 2)
-    U = T[:, :, 0] + shift_nodes(T[:, :, 1], S1) + shift_nodes(T[:, :, 2], 2 * S1)
-    grid = U[:, 0] + shift_nodes(U[:, 1], S0) + shift_nodes(U[:, 2], 2 * S0)
+        G.index_add_(0, lin[sl], contrib)  # one contiguous row of 108 per particle
+    grid = k("sums", G, S0, S1)  # (4, N)
 
     gv = solver._grid_update(grid, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
