@@ -12,9 +12,11 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
   the tolerance, as in the eager loop); it also returns whether every particle converged, else the caller falls
   back to the eager iteration;
 - :func:`p2g_contrib`: fixed-corotated Kirchhoff stress (paper eq. 4), the affine momentum matrix of eq. 6 and each
-  particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` (the ``index_add`` scatter stays eager);
-- :func:`g2p_update`: the gather of the 27 node velocities (fused: no ``(81, P)`` intermediate), the APIC sums and
-  the particle update of eq. 8-11 (C, v, x, F).
+  particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` as one ``(P, 108)`` row per particle (the
+  ``index_add_`` scatter stays eager);
+- :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid);
+- :func:`g2p_update`: the gather of the 27 node velocities straight from the ``(N, 3)`` grid (no bounds asserts:
+  the indices are inside the block by construction), the APIC sums and the particle update of eq. 8-11.
 
 Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
 The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
