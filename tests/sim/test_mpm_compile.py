@@ -13,7 +13,8 @@ from test_mpm import make_pad
 from tvrecon.sim import mpm_compiled
 from tvrecon.sim.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
-from tvrecon.sim.mpm_compiled import polar_fixed
+from tvrecon.sim.mpm_compiled import node_sums, polar_fixed
+from tvrecon.sim.mpm_grid import shift_nodes
 
 needs_compiler = pytest.mark.skipif(
     shutil.which("g++") is None and shutil.which("cc") is None, reason="torch.compile on CPU needs a C++ compiler"
@@ -99,3 +100,36 @@ def test_grad_steps_run_eager(monkeypatch):
     s, _ = _press(comp, 3)
     s.x.sum().backward()
     assert cfg.E.grad is not None and torch.isfinite(cfg.E.grad)
+
+
+def test_node_sums_matches_shift_sum():
+    """The compiled P2G's row sums (plain function) equal the eager step's 9 shifts of the (108, N) columns."""
+    D = [6, 5, 7]
+    N, S0, S1 = 2 * D[0] * D[1] * D[2], D[1] * D[2], D[2]  # two scenes' blocks
+    G = torch.randn(N, 108, generator=torch.Generator().manual_seed(0))
+    Gt = G.T.contiguous().view(4, 3, 3, 3, N)
+    T = Gt[:, :, :, 0] + shift_nodes(Gt[:, :, :, 1], 1) + shift_nodes(Gt[:, :, :, 2], 2)
+    U = T[:, :, 0] + shift_nodes(T[:, :, 1], S1) + shift_nodes(T[:, :, 2], 2 * S1)
+    ref = U[:, 0] + shift_nodes(U[:, 1], S0) + shift_nodes(U[:, 2], 2 * S0)
+    torch.testing.assert_close(node_sums(G, S0, S1), ref, rtol=1e-6, atol=1e-5)  # same terms, another sum order
+
+
+@pytest.mark.slow
+@needs_compiler
+def test_compiled_press_images_match_eager():
+    """A whole press (EIPSimulator) compiled vs eager: same steps, images within 1e-4 grid cells, force within 1e-5.
+
+    1e-4 cells is the stated tolerance of ``compile=True`` readings (paper-preset touches measured <= 2e-5 cells at
+    image maxima ~1 cell, benchmarks/README.md)."""
+    import trimesh
+
+    from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    sensor, press = SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=48)
+    pos, d = [0.0, 0.0, 0.3], [0.0, 0.0, -1.0]
+    ref = EIPSimulator(sensor, press).press(mesh, pos, d)
+    new = EIPSimulator(sensor, press, compile=True).press(mesh, pos, d)
+    assert ref.contact and ref.image.abs().max() > 0.1 and ref.steps == new.steps
+    assert (new.image - ref.image).abs().max() <= 1e-4
+    torch.testing.assert_close(new.force, ref.force, rtol=1e-5, atol=1e-7)

@@ -1,0 +1,100 @@
+"""Paper-preset touches pressed by an earlier commit's simulator and by the working tree, in one process (not a test).
+
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_ab.py --old REV [--touches 4]
+        [--first 1] [--stride 3] [--eager]
+
+``git archive REV tvrecon`` is unpacked into a temporary folder as the package ``tvrecon_old`` (imports renamed), so
+both versions run side by side; each touch (classes ``first + stride * i`` of ``available_classes()``, seeded
+cone-policy touch, paper preset: 64x64x6 pad, n_grid 128) is pressed by both, alternating which goes first, on one
+thread, with ``compile=True`` unless ``--eager``. Prints per touch the CPU seconds, the old/new ratio and the reading
+differences (image in grid cells, relative force), then the median and total ratio. Used for each step of issue 13
+step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import re
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
+from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
+
+
+def import_old(rev: str, where: Path):
+    """``tvrecon.sim.press`` of commit ``rev``, imported as ``tvrecon_old.sim.press``."""
+    blob = subprocess.run(["git", "archive", rev, "tvrecon"], cwd=ROOT, check=True, capture_output=True).stdout
+    tarfile.open(fileobj=io.BytesIO(blob)).extractall(where, filter="data")
+    (where / "tvrecon").rename(where / "tvrecon_old")
+    for f in (where / "tvrecon_old").rglob("*.py"):
+        f.write_text(re.sub(r"\btvrecon\b(?=[. ])", "tvrecon_old", f.read_text()))
+    sys.path.insert(0, str(where))
+    import tvrecon_old.sim.press as old_press
+
+    return old_press
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--old", required=True, help="git revision to compare with (e.g. HEAD~1)")
+    parser.add_argument("--touches", type=int, default=4)
+    parser.add_argument("--first", type=int, default=1, help="index of the first class")
+    parser.add_argument("--stride", type=int, default=3, help="class index step between touches")
+    parser.add_argument("--eager", action="store_true", help="compare the eager paths (default: compile=True)")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    comp = not args.eager
+    with tempfile.TemporaryDirectory() as tmp:
+        op = import_old(args.old, Path(tmp))
+        new = EIPSimulator(SensorConfig(resolution=(64, 64), layers=6), PressConfig(n_grid=128), compile=comp)
+        old = op.EIPSimulator(op.SensorConfig(resolution=(64, 64), layers=6), op.PressConfig(n_grid=128), compile=comp)
+        classes = available_classes()
+        jobs = []
+        for i in range(args.touches):
+            name = classes[(args.first + args.stride * i) % len(classes)]
+            mesh = make_shape(name, 0)
+            t = sample_touches(mesh, 1, seed=i, sim=new)
+            jobs.append((name, mesh, t.positions[0], t.directions[0], t.strengths[0]))
+        warnings.simplefilter("ignore")
+        for sim in (old, new):  # warm-up (and compile)
+            sim.press(*jobs[0][1:4], **jobs[0][4])
+        print(f"torch {torch.__version__}, 1 thread, {'compiled' if comp else 'eager'}; old = {args.old}")
+        ratios, t_old, t_new = [], 0.0, 0.0
+        for k, (name, mesh, pos, d, kw) in enumerate(jobs):
+            out = {}
+            for which, sim in (("old", old), ("new", new)) if k % 2 == 0 else (("new", new), ("old", old)):
+                c0 = time.process_time()
+                r = sim.press(mesh, pos, d, **kw)
+                out[which] = (time.process_time() - c0, r)
+            (a, ra), (b, rb) = out["old"], out["new"]
+            ratios.append(a / b)
+            t_old, t_new = t_old + a, t_new + b
+            di = (ra.image - rb.image).abs().max().item()
+            df = ((ra.force - rb.force).norm() / ra.force.norm().clamp_min(1e-30)).item()
+            print(
+                f"{name:12s} steps {ra.steps}/{rb.steps} old {a:5.2f} new {b:5.2f} CPU-s old/new {a / b:5.3f}; "
+                f"max|d image| {di:.2g}, |d force|/|force| {df:.2g}"
+            )
+        n = len(jobs)
+        print(
+            f"median old/new {statistics.median(ratios):.3f}, total {t_old / t_new:.3f} "
+            f"({t_old / n:.2f} -> {t_new / n:.2f} CPU-s per touch on this machine's load)"
+        )
+
+
+if __name__ == "__main__":
+    main()
