@@ -382,6 +382,11 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
             tables["seeds"] = seeds
     if any(r["task"] == "classification" for r in results):
         tables["table2"] = build_table2(results)
+        from tvrecon.cls_report import build_per_class_table  # imports this module
+
+        per_class = build_per_class_table(results)
+        if per_class.rows:
+            tables["table2_per_class"] = per_class
     return tables
 
 
@@ -398,7 +403,7 @@ def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]
 
 def format_tables(tables: Mapping[str, Table]) -> str:
     """All tables as one Markdown text (Table 2, then 3, then 4, then the touch controls)."""
-    order = ["table2", "table3", "seeds", "table4", "fscore", "touch_controls"]
+    order = ["table2", "table2_per_class", "table3", "seeds", "table4", "fscore", "touch_controls"]
     keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
     return "\n".join(tables[k].to_markdown() for k in keys)
 
@@ -436,7 +441,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m tvrecon.tables", description=main.__doc__)
     parser.add_argument("paths", nargs="+", help="run folders (searched recursively for metrics.json) or files")
-    parser.add_argument("--out", default=None, help="also write table{2,3,4}.{md,csv} and tables.md here")
+    parser.add_argument(
+        "--out", default=None, help="also write table{2,3,4}.{md,csv}, tables.md (and classifiers' confusion PNGs) here"
+    )
     args = parser.parse_args(argv)
     try:
         tables = build_tables(collect_results(args.paths))
@@ -446,7 +453,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("the metrics.json files hold no reconstruction or classification results")
     print(format_tables(tables))
     if args.out:
+        from tvrecon.cls_report import write_confusion_plots  # imports this module
+
         print(f"(tables written to {write_tables(tables, args.out)[0].parent})")
+        for path in write_confusion_plots(collect_results(args.paths), args.out):
+            print(f"(confusion matrix: {path})")
     return 0
 
 
