@@ -8,6 +8,9 @@ over the runs (seeds) of each k:
 - :func:`plot_confusion`: a row-normalised confusion matrix as a PNG (the rows are true classes, so the diagonal is
   the per-class accuracy);
 - :func:`write_confusion_plots`: the fewest and the most touches evaluated, ``confusion_<k>touch.png``.
+
+Runs of different models (experiment names) are kept apart: with more than one model the table's columns and the
+file names carry the model's name.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from tvrecon.seed_summary import mean_std
-from tvrecon.tables import CLS_TOUCHES, Table, _check_results
+from tvrecon.tables import CLS_TOUCHES, PRETTY_NAMES, Table, _check_results
 
 __all__ = ["build_per_class_table", "confusion_by_touches", "plot_confusion", "write_confusion_plots"]
 
@@ -29,8 +32,15 @@ def _cls(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     return [r for r in _check_results(results) if r["task"] == "classification" and r.get("confusion")]
 
 
+def _by_model(results: Iterable[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in _cls(results):
+        groups.setdefault(str(r["name"]), []).append(r)
+    return groups
+
+
 def confusion_by_touches(results: Iterable[Mapping[str, Any]]) -> dict[int, tuple[np.ndarray, list[str], int]]:
-    """Confusion matrices summed over the runs, per touch count.
+    """Confusion matrices summed over the runs (of one model), per touch count.
 
     Returns:
         {k: (counts (C, C) int64, class names (C,), number of runs)}.
@@ -57,18 +67,25 @@ def confusion_by_touches(results: Iterable[Mapping[str, Any]]) -> dict[int, tupl
 
 
 def build_per_class_table(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
-    """Per-class accuracy (%) by touch count: mean +- sample std over the runs that tested that class with k."""
-    cls = _cls(results)
-    ks = [k for k in touches if any(str(k) in r.get("per_class", {}) for r in cls)]
+    """Per-class accuracy (%) by touch count: mean +- sample std over the runs that tested that class with k.
+
+    One column per touch count (and model, when the results hold several)."""
+    groups = _by_model(results)
+    columns: list[tuple[str, int]] = [
+        (name, k)
+        for name, runs in groups.items()
+        for k in touches
+        if any(str(k) in r.get("per_class", {}) for r in runs)
+    ]
     classes: list[str] = []
-    for r in cls:
-        for k in ks:
+    for name, k in columns:
+        for r in groups[name]:
             classes += [c for c in r.get("per_class", {}).get(str(k), {}) if c not in classes]
     rows = []
     for c in classes:
         row = [c]
-        for k in ks:
-            found = [r["per_class"][str(k)] for r in cls if c in r.get("per_class", {}).get(str(k), {})]
+        for name, k in columns:
+            found = [r["per_class"][str(k)] for r in groups[name] if c in r.get("per_class", {}).get(str(k), {})]
             values = [100.0 * float(per_class[c]) for per_class in found]
             if values:
                 mean, std = mean_std(values)
@@ -76,11 +93,13 @@ def build_per_class_table(results: Iterable[Mapping[str, Any]], touches: Sequenc
             else:
                 row.append("-")
         rows.append(row)
+    several = len(groups) > 1
+    header = ["Class"] + [f"{PRETTY_NAMES.get(n, n)} {k}-touch" if several else f"{k}-touch" for n, k in columns]
     notes = [
         "Accuracy (%) of each class's test draws, mean +- sample std over the runs (seeds) of each touch count; "
         "the confusion matrices summed over those runs are confusion_<k>touch.png."
     ]
-    return Table("Table 2 per class: accuracy (%) by touches", ["Class"] + [f"{k}-touch" for k in ks], rows, notes)
+    return Table("Table 2 per class: accuracy (%) by touches", header, rows, notes)
 
 
 def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, title: str) -> Path:
@@ -113,13 +132,15 @@ def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, t
 
 
 def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
-    """``confusion_<k>touch.png`` in ``out_dir`` for the fewest and the most touches evaluated (summed over runs)."""
-    by_k = confusion_by_touches(results)
-    if not by_k:
-        return []
+    """``confusion_<k>touch.png`` in ``out_dir`` for the fewest and the most touches evaluated (summed over runs);
+    ``confusion_<model>_<k>touch.png`` when the results hold several models."""
+    groups = _by_model(results)
     paths = []
-    for k in sorted({min(by_k), max(by_k)}):
-        counts, names, runs = by_k[k]
-        title = f"{k} touch{'es' if k > 1 else ''}, {runs} run{'s' if runs > 1 else ''} summed"
-        paths.append(plot_confusion(counts, names, Path(out_dir) / f"confusion_{k}touch.png", title))
+    for name, runs in groups.items():
+        by_k = confusion_by_touches(runs)
+        stem = f"confusion_{name}_" if len(groups) > 1 else "confusion_"
+        for k in sorted({min(by_k), max(by_k)}):
+            counts, names, n = by_k[k]
+            title = f"{PRETTY_NAMES.get(name, name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
+            paths.append(plot_confusion(counts, names, Path(out_dir) / f"{stem}{k}touch.png", title))
     return paths

@@ -68,6 +68,24 @@ def test_confusion_plots_are_written_for_fewest_and_most_touches(tmp_path: Path)
         plot_confusion(np.ones((2, 3)), ["a", "b"], tmp_path / "bad.png", "bad")
 
 
+def test_models_are_kept_apart(tmp_path: Path) -> None:
+    other = {**RUNS[2], "name": "classify_touch_set", "confusion": {"10": [[4, 0, 0], [0, 2, 2], [0, 0, 4]]}}
+    other["per_class"] = {"10": {"cube": 1.0, "gear": 0.5, "mug": 1.0}}
+    table = build_per_class_table([*RUNS, other])
+    assert table.header[1:] == [
+        "Tactile classifier 1-touch",
+        "Tactile classifier 10-touch",
+        "Touch-set classifier (beyond the paper) 10-touch",
+    ]
+    assert {r[0]: r[3] for r in table.rows}["gear"] == "50.0 +- 0.0"
+    names = [p.name for p in write_confusion_plots([*RUNS, other], tmp_path)]
+    assert names == [
+        "confusion_classify_1touch.png",
+        "confusion_classify_10touch.png",
+        "confusion_classify_touch_set_10touch.png",
+    ]
+
+
 def test_tables_and_report_include_the_per_class_table(tmp_path: Path) -> None:
     assert set(build_tables(RUNS)) == {"table2", "table2_per_class"}
     text = report_tables(RUNS, tmp_path, echo=False)
