@@ -59,6 +59,7 @@ PRETTY_NAMES: dict[str, str] = {
     "touch_geometry": "Touch geometry (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
+    "classify_touch_set": "Touch-set classifier (beyond the paper)",
 }
 # Row order of Tables 3 and 4 (paper order), unknown names after these in input order.
 ROW_ORDER: tuple[str, ...] = (
@@ -333,29 +334,36 @@ def build_fscore_table(results: Iterable[Mapping[str, Any]], touches: Sequence[i
 
 
 def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
-    """Table 2: classification accuracy (%) by number of touches, mean +- std over the runs (seeds).
+    """Table 2: classification accuracy (%) by number of touches, one row per model (experiment name), mean +- std
+    over its runs (seeds).
 
     Each classification result contributes its accuracy for every touch count it was evaluated with; the std
     is the sample standard deviation (ddof=1) over runs, 0 for a single run; ``n`` runs are reported.
     """
     cls = [r for r in _check_results(results) if r["task"] == "classification"]
-    header = [f"{k}-touch" for k in touches]
-    cells: list[str] = []
-    counts: list[int] = []
-    for k in touches:
-        values = [100.0 * float(r["accuracy"][str(k)]) for r in cls if str(k) in r["accuracy"]]
-        counts.append(len(values))
-        if not values:
-            cells.append("-")
-            continue
-        mean = sum(values) / len(values)
-        std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
-        cells.append(f"{mean:.1f} +- {std:.1f}")
-    rows = [cells] if cls else []
-    notes = [
-        "Accuracy (%) over the test split; runs per column: " + ", ".join(f"{k}: {n}" for k, n in zip(touches, counts))
-    ]
-    return Table("Table 2: tactile classification accuracy (%)", header, rows, notes)
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in cls:
+        groups.setdefault(str(r["name"]), []).append(r)
+    rows: list[list[str]] = []
+    notes = []
+    for name, runs in groups.items():
+        cells = [PRETTY_NAMES.get(name, name)]
+        counts = []
+        for k in touches:
+            values = [100.0 * float(r["accuracy"][str(k)]) for r in runs if str(k) in r["accuracy"]]
+            counts.append(len(values))
+            if not values:
+                cells.append("-")
+                continue
+            mean = sum(values) / len(values)
+            std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
+            cells.append(f"{mean:.1f} +- {std:.1f}")
+        rows.append(cells)
+        notes.append(f"{cells[0]}: runs per column " + ", ".join(f"{k}: {n}" for k, n in zip(touches, counts)))
+    notes.insert(0, "Accuracy (%) over the test split, mean +- sample std over the runs (seeds).")
+    return Table(
+        "Table 2: tactile classification accuracy (%)", ["Model"] + [f"{k}-touch" for k in touches], rows, notes
+    )
 
 
 def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | None = None) -> dict[str, Table]:
@@ -382,6 +390,11 @@ def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
             tables["seeds"] = seeds
     if any(r["task"] == "classification" for r in results):
         tables["table2"] = build_table2(results)
+        from tvrecon.cls_report import build_per_class_table  # imports this module
+
+        per_class = build_per_class_table(results)
+        if per_class.rows:
+            tables["table2_per_class"] = per_class
     return tables
 
 
@@ -398,7 +411,7 @@ def write_tables(tables: Mapping[str, Table], out_dir: str | Path) -> list[Path]
 
 def format_tables(tables: Mapping[str, Table]) -> str:
     """All tables as one Markdown text (Table 2, then 3, then 4, then the touch controls)."""
-    order = ["table2", "table3", "seeds", "table4", "fscore", "touch_controls"]
+    order = ["table2", "table2_per_class", "table3", "seeds", "table4", "fscore", "touch_controls"]
     keys = [k for k in order if k in tables] + [k for k in tables if k not in order]
     return "\n".join(tables[k].to_markdown() for k in keys)
 
@@ -436,7 +449,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m tvrecon.tables", description=main.__doc__)
     parser.add_argument("paths", nargs="+", help="run folders (searched recursively for metrics.json) or files")
-    parser.add_argument("--out", default=None, help="also write table{2,3,4}.{md,csv} and tables.md here")
+    parser.add_argument(
+        "--out", default=None, help="also write table{2,3,4}.{md,csv}, tables.md (and classifiers' confusion PNGs) here"
+    )
     args = parser.parse_args(argv)
     try:
         tables = build_tables(collect_results(args.paths))
@@ -446,7 +461,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("the metrics.json files hold no reconstruction or classification results")
     print(format_tables(tables))
     if args.out:
+        from tvrecon.cls_report import write_confusion_plots  # imports this module
+
         print(f"(tables written to {write_tables(tables, args.out)[0].parent})")
+        for path in write_confusion_plots(collect_results(args.paths), args.out):
+            print(f"(confusion matrix: {path})")
     return 0
 
 

@@ -192,6 +192,21 @@ def test_unplaceable_touch_is_redrawn(recon_cache: Path):
     ds.simulator.press(mesh, fixed.positions[1], fixed.directions[1], max_steps=1)
 
 
+def test_memory_cache_reads_each_entry_from_disk_once(recon_cache: Path, monkeypatch):
+    ds, plain = recon(recon_cache, memory_cache=True), recon(recon_cache)
+    reads = []
+    original = ds.cache.get_or_create
+    monkeypatch.setattr(ds.cache, "get_or_create", lambda *a, **k: reads.append(1) or original(*a, **k))
+    first = ds[0]
+    assert_same(first, plain[0])
+    for _ in range(3):
+        assert_same(ds[0], first)
+        assert ds.raw(0)[1]
+    assert len(reads) == 1
+    ds.raw(0)[0]["tactile"] = None  # callers may edit their copy of the entry: the kept one is unchanged
+    assert_same(ds[0], first)
+
+
 def test_dataset_pickles_without_simulator(recon_cache: Path):
     ds = recon(recon_cache)
     assert ds.simulator is ds.simulator  # built once per process

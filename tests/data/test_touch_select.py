@@ -9,7 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.data.datamodule import ClassificationDataModule
-from tvrecon.data.datasets import TactileClassificationDataset
+from tvrecon.data.datasets import EvalDraws, TactileClassificationDataset
 from tvrecon.data.shapes import ObjectLibrary
 from tvrecon.data.touch_select import TouchSelector, set_loader_epoch
 from tvrecon.models.lit_cls import ClassificationModule
@@ -75,6 +75,22 @@ def test_orientations_are_seeded_and_cover_the_eight_poses() -> None:
     np.testing.assert_array_equal(sel.orientations(5, 2)[0], sel.orientations(5, 2)[0])
 
 
+def test_evaluation_draws_are_windows_that_show_every_touch_equally_often() -> None:
+    one = TouchSelector(num_cached=10, num_touches=1, redraw=False, eval_draws=10)
+    assert sorted(int(one.indices(99, 0, j)[0]) for j in range(10)) == list(range(10))  # N=1: every touch once
+    four = TouchSelector(num_cached=10, num_touches=4, redraw=False, eval_draws=10)
+    windows = [four.indices(99, 3, j) for j in range(10)]
+    assert all(len(set(w.tolist())) == 4 for w in windows)
+    assert len({tuple(w.tolist()) for w in windows}) == 10  # 10 different draws
+    np.testing.assert_array_equal(np.bincount(np.concatenate(windows), minlength=10), np.full(10, 4))
+    np.testing.assert_array_equal(four.indices(99, 0, 5), four.indices(99, 17, 5))  # no epoch term
+    assert four.draws == 10 and TouchSelector(10, 4, redraw=True, eval_draws=10).draws == 1
+    with pytest.raises(ValueError, match="draw must be in"):
+        four.indices(99, 0, 10)
+    with pytest.raises(ValueError, match="eval_draws <= num_cached"):
+        TouchSelector(num_cached=10, num_touches=4, redraw=False, eval_draws=11)
+
+
 def test_bad_input() -> None:
     with pytest.raises(ValueError, match="num_touches <= num_cached"):
         TouchSelector(num_cached=3, num_touches=4, redraw=True)
@@ -103,6 +119,30 @@ def test_item_shows_more_than_n_touches_in_training_and_the_same_at_test(cache: 
     train.set_epoch(4)
     sel = train.touch_indices(1)
     assert torch.equal(train[1]["positions"], torch.from_numpy(raw["positions"][sel]))
+
+
+def test_eval_draws_serve_each_object_k_times_through_the_test_loader(cache: Path) -> None:
+    kwargs = dict(
+        train={"num_objects": 2, "classes": CLASSES},
+        test={"num_objects": 2, "classes": CLASSES},
+        cache_dir=cache,
+        touches_per_object=M,
+        num_touches=1,
+        **SIM,
+    )
+    plain = ClassificationDataModule(**kwargs).test_dataloader()
+    drawn = ClassificationDataModule(eval_draws=M, **kwargs).test_dataloader()
+    assert len(plain.dataset) == 2 and len(drawn.dataset) == 2 * M
+    base = drawn.dataset.dataset
+    raw, _ = base.raw(1)
+    shown = torch.stack([drawn.dataset[M + j]["tactile"][0] for j in range(M)])  # object 1's five draws
+    expected = base._tactile(raw["tactile"])  # all M cached touches of object 1
+    order = [int(base.touch_indices(1, draw=j)[0]) for j in range(M)]
+    assert sorted(order) == list(range(M)) and torch.equal(shown, expected[order])
+    assert {int(drawn.dataset[i]["label"]) for i in range(M)} == {int(plain.dataset[0]["label"])}
+    assert not isinstance(ClassificationDataModule(eval_draws=M, **kwargs).train_dataloader().dataset, EvalDraws)
+    with pytest.raises(IndexError, match="out of range"):
+        drawn.dataset[2 * M]
 
 
 def test_rotation_augmentation_only_turns_the_training_draw(cache: Path) -> None:

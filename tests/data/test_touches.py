@@ -129,6 +129,7 @@ def test_resize_tactile() -> None:
     assert resize_tactile(x[0]).shape == (3, 224, 224)
     assert resize_tactile(x, size=(32, 48)).shape == (4, 3, 32, 48)
     assert resize_tactile(torch.rand(2, 3, 300, 300), 224).shape == (2, 3, 224, 224)
+    assert torch.equal(resize_tactile(x, 64), x)  # at the model resolution already: returned exactly
     const = torch.full((1, 3, 64, 64), 0.7)
     assert torch.allclose(resize_tactile(const), torch.full((1, 3, 224, 224), 0.7), atol=1e-6)
     # a blob keeps its place and mass (area-normalised)

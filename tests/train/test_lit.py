@@ -160,6 +160,14 @@ def test_classification_fit_test_and_learns(tmp_path: Path) -> None:
     res = model.test_results
     assert res["task"] == "classification" and set(res["accuracy"]) == {"1", "2"}
     assert res["accuracy"]["2"] > 0.5  # 3 separable classes: far above chance (1/3)
+    for k in ("1", "2"):  # the confusion matrix and per-class accuracy agree with the accuracy
+        matrix = torch.tensor(res["confusion"][k])
+        assert matrix.shape == (3, 3) and int(matrix.sum()) == len(dm.test_dataloader().dataset)
+        assert int(matrix.diagonal().sum()) / int(matrix.sum()) == pytest.approx(res["accuracy"][k])
+        rows = matrix.sum(1)
+        expected = {res["classes"][c]: int(matrix[c, c]) / int(rows[c]) for c in range(3) if rows[c] > 0}
+        assert res["per_class"][k] == pytest.approx(expected)
+    assert len(res["classes"]) == 3
     with pytest.raises(ValueError, match="num_touches must be in"):
         ClassificationModule(TactileClassifier(num_classes=3, num_touches=2), _optimizer, num_touches=3)
 

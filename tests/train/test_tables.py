@@ -69,9 +69,15 @@ def test_table2_mean_std_over_seeds() -> None:
         for s, a1, a10 in [(0, 0.30, 0.90), (1, 0.40, 0.94), (2, 0.35, 0.92)]
     ]
     rows = _csv_rows(build_table2(results).to_csv())
-    assert rows[0] == ["1-touch", "2-touch", "4-touch", "6-touch", "8-touch", "10-touch"]
+    assert rows[0] == ["Model", "1-touch", "2-touch", "4-touch", "6-touch", "8-touch", "10-touch"]
     # mean 35.0, sample std 5.0 ; mean 92.0, std 2.0
-    assert rows[1] == ["35.0 +- 5.0", "-", "-", "-", "-", "92.0 +- 2.0"]
+    assert rows[1] == ["Tactile classifier", "35.0 +- 5.0", "-", "-", "-", "-", "92.0 +- 2.0"]
+    other = {"task": "classification", "name": "classify_touch_set", "seed": 0, "accuracy": {"1": 0.5}}
+    rows = _csv_rows(build_table2([*results, other]).to_csv())  # one row per model, never pooled
+    assert (
+        rows[1][1] == "35.0 +- 5.0"
+        and rows[2] == ["Touch-set classifier (beyond the paper)", "50.0 +- 0.0"] + ["-"] * 5
+    )
 
 
 def test_build_tables_selects_by_task_and_writes_files(tmp_path) -> None:

@@ -18,9 +18,14 @@ from typing import Any
 
 import torch
 from lightning import LightningDataModule
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, Dataset
 
-from tvrecon.data.datasets import GeneratedDataset, ReconstructionDataset, TactileClassificationDataset
+from tvrecon.data.datasets import (
+    EvalDraws,
+    GeneratedDataset,
+    ReconstructionDataset,
+    TactileClassificationDataset,
+)
 from tvrecon.data.shapes import ObjectLibrary
 
 __all__ = ["ReconstructionDataModule", "ClassificationDataModule", "worker_init"]
@@ -137,7 +142,7 @@ class _GeneratedDataModule(LightningDataModule):
         if name not in self.datasets:
             raise ValueError(f"this datamodule has no {name!r} split configured")
         return DataLoader(
-            self.datasets[name],
+            self._served(name),
             batch_size=self.batch_size if name == "train" else self.eval_batch_size,
             shuffle=shuffle,
             num_workers=self.num_workers,
@@ -146,6 +151,10 @@ class _GeneratedDataModule(LightningDataModule):
             worker_init_fn=worker_init if self.num_workers > 0 else None,
             generator=torch.Generator().manual_seed(self.seed) if shuffle else None,
         )
+
+    def _served(self, name: str) -> Dataset:
+        """The dataset a split's loader serves (a subclass may wrap the split's dataset)."""
+        return self.datasets[name]
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)
@@ -185,7 +194,8 @@ class ClassificationDataModule(_GeneratedDataModule):
     False in ``val`` / ``test``; a split mapping may set it), see :mod:`tvrecon.data.touch_select`. The epoch reaches
     the dataset from :meth:`~tvrecon.models.lit_cls.ClassificationModule.on_train_epoch_start`, which needs workers
     re-created every epoch: ``persistent_workers=True`` with a redrawing train split raises ValueError.
-    ``rotate_touches`` (shared, default False) turns on the orientation augmentation of the training draws.
+    ``rotate_touches`` (shared, default False) turns on the orientation augmentation of the training draws;
+    ``eval_draws`` (shared, default 1) K > 1 tests and validates every object with K fixed draws of N touches.
     """
 
     dataset_cls = TactileClassificationDataset
@@ -207,6 +217,14 @@ class ClassificationDataModule(_GeneratedDataModule):
                 "re-created each epoch and see the new epoch's draw) or data.train.redraw_touches=false"
             )
         return super().train_dataloader()
+
+    def _served(self, name: str) -> Dataset:
+        """Evaluation splits with ``eval_draws`` K > 1 serve every object K times
+        (:class:`~tvrecon.data.datasets.EvalDraws`); otherwise the split's dataset."""
+        dataset = self.datasets[name]
+        if dataset.redraw_touches or dataset.selector.draws == 1:
+            return dataset
+        return EvalDraws(dataset)
 
     @property
     def num_touches(self) -> int:

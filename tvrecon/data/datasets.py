@@ -26,6 +26,7 @@ import numpy as np
 import torch
 import trimesh
 from torch import Tensor
+from torch.utils.data import Dataset
 
 from tvrecon.config_utils import coerce_config
 from tvrecon.data.generated import GeneratedDataset
@@ -36,6 +37,7 @@ from tvrecon.sim.contact import contact_patch
 
 __all__ = [
     "RenderConfig",
+    "EvalDraws",
     "GeneratedDataset",
     "ReconstructionDataset",
     "TactileClassificationDataset",
@@ -235,6 +237,8 @@ class TactileClassificationDataset(GeneratedDataset):
         num_touches: N touches per sample (1 <= N <= M).
         redraw_touches: draw the N touches afresh per epoch (training) instead of a fixed subset.
         rotate_touches: random quarter turns and mirroring of each drawn touch (only with ``redraw_touches``).
+        eval_draws: K fixed draws of N touches per object at evaluation (``redraw_touches=False``), served through
+            :class:`EvalDraws` (``len`` = objects x K); 1 (default) = one sorted seeded subset per object.
     """
 
     kind = "classification"
@@ -246,6 +250,7 @@ class TactileClassificationDataset(GeneratedDataset):
         num_touches: int = 1,
         redraw_touches: bool = False,
         rotate_touches: bool = False,
+        eval_draws: int = 1,
         **kwargs: Any,
     ) -> None:
         if not 1 <= int(num_touches) <= int(touches_per_object):
@@ -257,7 +262,9 @@ class TactileClassificationDataset(GeneratedDataset):
             raise ValueError("use touches_per_object, not touches_per_item, for TactileClassificationDataset")
         super().__init__(num_items=num_objects, touches_per_item=int(touches_per_object), **kwargs)
         self.num_touches = int(num_touches)
-        self.selector = TouchSelector(self.touches_per_item, self.num_touches, redraw=bool(redraw_touches))
+        self.selector = TouchSelector(
+            self.touches_per_item, self.num_touches, redraw=bool(redraw_touches), eval_draws=int(eval_draws)
+        )
         self.rotate_touches = bool(rotate_touches)
         if self.rotate_touches and self.tactile_size[0] != self.tactile_size[1]:
             raise ValueError(f"rotate_touches needs square tactile images, got tactile_size={self.tactile_size}")
@@ -280,15 +287,20 @@ class TactileClassificationDataset(GeneratedDataset):
         out["label"] = np.asarray(self.label_of(index), dtype=np.int64)
         return out
 
-    def touch_indices(self, index: int, epoch: int | None = None) -> np.ndarray:
-        """(N,) int64 indices of the cached touches item ``index`` uses at ``epoch`` (default: the current one)."""
+    def touch_indices(self, index: int, epoch: int | None = None, draw: int = 0) -> np.ndarray:
+        """(N,) int64 indices of the cached touches item ``index`` uses at ``epoch`` (default: the current one) in
+        evaluation draw ``draw``."""
         epoch = self.epoch if epoch is None else int(epoch)
-        return self.selector.indices(self.seeds(index)[3], epoch)
+        return self.selector.indices(self.seeds(index)[3], epoch, draw)
 
     def __getitem__(self, index: int) -> dict[str, Tensor]:
+        return self.sample(index)
+
+    def sample(self, index: int, draw: int = 0) -> dict[str, Tensor]:
+        """Item ``index`` with the touches of evaluation draw ``draw`` (0 in training); see the class docstring."""
         index = self._check_index(index)
         raw, _ = self.raw(index)
-        sel = self.touch_indices(index)
+        sel = self.touch_indices(index, draw=draw)
         tactile = self._tactile(raw["tactile"][sel])
         if self.rotate_touches and self.redraw_touches:
             k, mirror = self.selector.orientations(self.seeds(index)[3], self.epoch)
@@ -300,3 +312,27 @@ class TactileClassificationDataset(GeneratedDataset):
             "directions": torch.from_numpy(raw["directions"][sel]),
             "label": torch.tensor(int(raw["label"]), dtype=torch.int64),
         }
+
+
+class EvalDraws(Dataset):
+    """Every evaluation draw of a :class:`TactileClassificationDataset`: sample ``i`` is object ``i // K`` with its
+    draw ``i % K`` (K = ``dataset.selector.draws``), so a test over it classifies each object K times.
+
+    Args:
+        dataset: the evaluation (non-redrawing) dataset; generation and the cache still go through it (per object).
+    """
+
+    def __init__(self, dataset: TactileClassificationDataset) -> None:
+        if dataset.redraw_touches:
+            raise ValueError("EvalDraws serves the fixed evaluation draws; the training split redraws every epoch")
+        self.dataset = dataset
+        self.draws = dataset.selector.draws
+
+    def __len__(self) -> int:
+        return len(self.dataset) * self.draws
+
+    def __getitem__(self, index: int) -> dict[str, Tensor]:
+        index = int(index)
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} samples ({self.draws} draws per object)")
+        return self.dataset.sample(index // self.draws, index % self.draws)

@@ -7,7 +7,9 @@ shows is decided here and nowhere else:
   training draws N of the M touches afresh at every visit (paper section 4.2: "during each training iteration, we
   randomly choose N tactile images"), in random order, reproducibly from ``(item seed, epoch)`` where the item seed
   is the dataset's load seed of ``(seed, split, index)``; evaluation takes a fixed seeded subset, sorted, the same
-  for every epoch. The
+  for every epoch, or with ``eval_draws = K > 1`` K fixed draws per object: the K windows of N consecutive touches
+  of a seeded permutation of the M touches, so every cached touch is shown equally often (with K = M and N = 1 each
+  test touch is classified once: the paper's 1,500 test tactile images of Table 1). The
   :class:`~tvrecon.models.lit_cls.ClassificationModule` keeps the first N touches it is given; it draws nothing.
 - **Reconstruction**: the dataset serves the first T of the ``max_touches`` cached touches (T drawn per
   sample from its load seed, or fixed by ``num_touches``) and
@@ -35,7 +37,7 @@ import numpy as np
 
 __all__ = ["TouchSelector", "set_loader_epoch"]
 
-_INDICES, _ORIENTATIONS = 1, 2  # SeedSequence stream tags of the training draws
+_INDICES, _ORIENTATIONS, _EVAL = 1, 2, 3  # SeedSequence stream tags of the training draws and evaluation windows
 
 
 @dataclass(frozen=True)
@@ -46,11 +48,14 @@ class TouchSelector:
         num_cached: M, touches cached per item (>= 1).
         num_touches: N, touches per sample (1 <= N <= M).
         redraw: True (training): a fresh draw per ``epoch``; False (evaluation): the same sorted subset every epoch.
+        eval_draws: K fixed draws per object at evaluation (1 <= K <= M; ignored when ``redraw``): 1 is the sorted
+            seeded subset, K > 1 the first K windows of N consecutive touches (cyclically) of a seeded permutation.
     """
 
     num_cached: int
     num_touches: int
     redraw: bool
+    eval_draws: int = 1
 
     def __post_init__(self) -> None:
         if int(self.num_cached) < 1:
@@ -58,6 +63,11 @@ class TouchSelector:
         if not 1 <= int(self.num_touches) <= int(self.num_cached):
             raise ValueError(
                 f"need 1 <= num_touches <= num_cached, got num_touches={self.num_touches}, num_cached={self.num_cached}"
+            )
+        if not 1 <= int(self.eval_draws) <= int(self.num_cached):
+            raise ValueError(
+                f"need 1 <= eval_draws <= num_cached (the windows repeat beyond M), got eval_draws={self.eval_draws}, "
+                f"num_cached={self.num_cached}"
             )
 
     @staticmethod
@@ -67,14 +77,26 @@ class TouchSelector:
         if int(epoch) < 0:
             raise ValueError(f"epoch must be >= 0, got {epoch}")
 
-    def indices(self, item_seed: int, epoch: int = 0) -> np.ndarray:
+    @property
+    def draws(self) -> int:
+        """Samples per item: ``eval_draws`` at evaluation, 1 in training (one fresh draw per epoch)."""
+        return 1 if self.redraw else int(self.eval_draws)
+
+    def indices(self, item_seed: int, epoch: int = 0, draw: int = 0) -> np.ndarray:
         """(N,) int64 distinct indices into the item's M cached touches.
 
         Training (``redraw``): a uniform draw of N touches in random order, a function of ``(item_seed, epoch)``.
-        Evaluation: ``sort(default_rng(item_seed).choice(M, N, replace=False))``, ``epoch`` ignored.
+        Evaluation, ``eval_draws == 1``: ``sort(default_rng(item_seed).choice(M, N, replace=False))``; ``eval_draws
+        > 1``: draw ``j`` is ``perm[(j + arange(N)) % M]`` for a permutation ``perm`` seeded by ``item_seed`` (its
+        order kept, as in training). ``epoch`` is ignored at evaluation.
         """
         self._check(item_seed, epoch)
+        if not 0 <= int(draw) < self.draws:
+            raise ValueError(f"draw must be in [0, {self.draws}), got {draw}")
         M, N = int(self.num_cached), int(self.num_touches)
+        if not self.redraw and int(self.eval_draws) > 1:
+            perm = np.random.default_rng(np.random.SeedSequence([int(item_seed), _EVAL])).permutation(M)
+            return perm[(int(draw) + np.arange(N)) % M].astype(np.int64)
         if not self.redraw:
             rng = np.random.default_rng(int(item_seed))
             return np.sort(rng.choice(M, size=N, replace=False)).astype(np.int64)

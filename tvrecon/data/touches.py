@@ -415,6 +415,8 @@ def resize_tactile(image: Tensor, size: int | tuple[int, int] = 224) -> Tensor:
     batched = image if image.ndim == 4 else image[None]
     if batched.shape[0] == 0:  # no touches: nothing to interpolate
         return batched.new_zeros((0, 3, *hw))
+    if tuple(batched.shape[-2:]) == hw:  # already at the model resolution: the identity, no interpolation round-off
+        return image
     shrink = hw[0] < batched.shape[-2] or hw[1] < batched.shape[-1]
     out = kornia.geometry.transform.resize(batched, hw, interpolation="bilinear", align_corners=False, antialias=shrink)
     return out if image.ndim == 4 else out[0]

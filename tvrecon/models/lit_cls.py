@@ -77,6 +77,12 @@ class ClassificationModule(L.LightningModule):
         eval_touches: touch counts evaluated at test time with ``touch_sampling="random"``.
         name: experiment name for the result dict and tables.
         seed: run seed, recorded in the result dict (Table 2 averages over seeds).
+        class_names: label -> class name for the per-class results; None reads ``datamodule.library.classes`` at
+            test time (labels beyond the names are called ``class<i>``).
+
+    Test results (``test_results``, written to ``metrics.json``): ``accuracy`` {k: fraction}, and per touch count k
+    the ``confusion`` matrix (C, C) int (rows: true class, columns: predicted), ``per_class`` accuracy {name:
+    fraction} of the classes present in the test split, and ``classes`` (the C names).
     """
 
     def __init__(
@@ -89,6 +95,7 @@ class ClassificationModule(L.LightningModule):
         eval_touches: Sequence[int] | None = None,
         name: str = "classify",
         seed: int | None = None,
+        class_names: Sequence[str] | None = None,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -108,8 +115,8 @@ class ClassificationModule(L.LightningModule):
             self.eval_touches = [self.num_touches]
         else:
             self.eval_touches = sorted({int(k) for k in eval_touches if 1 <= int(k) <= self.num_touches})
-        self._correct: dict[int, Tensor] = {}
-        self._total: dict[int, Tensor] = {}
+        self.class_names = None if class_names is None else [str(c) for c in class_names]
+        self._confusion: dict[int, Tensor] = {}
         self.test_results: dict[str, Any] | None = None
 
     def forward(self, tactile: Tensor) -> Tensor:
@@ -141,34 +148,54 @@ class ClassificationModule(L.LightningModule):
         acc = (logits.argmax(1) == batch["label"]).float().mean()
         self.log("val/acc", acc, prog_bar=True, batch_size=B, sync_dist=True)
 
+    def _names(self, num_classes: int) -> list[str]:
+        names = self.class_names
+        if names is None:
+            library = getattr(getattr(self.trainer, "datamodule", None), "library", None)
+            names = [str(c) for c in getattr(library, "classes", [])]
+        return [names[i] if i < len(names) else f"class{i}" for i in range(num_classes)]
+
     def on_test_epoch_start(self) -> None:
-        self._correct = {k: torch.zeros((), device=self.device) for k in self.eval_touches}
-        self._total = {k: torch.zeros((), device=self.device) for k in self.eval_touches}
+        self._confusion = {}
 
     def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         available = int(batch["touch_mask"].sum(1).min())
         for k in self.eval_touches:
             if k > available:
                 continue
-            logits = self(select_touches(batch["tactile"], batch["touch_mask"], k))
-            self._correct[k] += (logits.argmax(1) == batch["label"]).sum()
-            self._total[k] += logits.shape[0]
+            logits = self(select_touches(batch["tactile"], batch["touch_mask"], k))  # (B, C)
+            C = logits.shape[1]
+            pair = batch["label"] * C + logits.argmax(1)  # (B,) true * C + predicted
+            counts = torch.bincount(pair, minlength=C * C).view(C, C)
+            self._confusion[k] = counts if k not in self._confusion else self._confusion[k] + counts
 
     def on_test_epoch_end(self) -> None:
+        names: list[str] = []
         accuracy: dict[str, float] = {}
+        confusion: dict[str, list[list[int]]] = {}
+        per_class: dict[str, dict[str, float]] = {}
         for k in self.eval_touches:
-            correct = self.trainer.strategy.reduce(self._correct[k], reduce_op="sum")
-            total = self.trainer.strategy.reduce(self._total[k], reduce_op="sum")
-            if float(total) == 0:
+            if k not in self._confusion:
                 continue
-            accuracy[str(k)] = float(correct) / float(total)
+            matrix = self.trainer.strategy.reduce(self._confusion[k], reduce_op="sum").cpu()  # (C, C)
+            names = self._names(matrix.shape[0])
+            total = int(matrix.sum())
+            accuracy[str(k)] = float(matrix.diagonal().sum()) / total
             self.log(f"test/acc@{k}", accuracy[str(k)], sync_dist=False)
+            confusion[str(k)] = matrix.tolist()
+            rows = matrix.sum(1)
+            per_class[str(k)] = {
+                names[c]: float(matrix[c, c]) / float(rows[c]) for c in range(len(names)) if int(rows[c]) > 0
+            }
         self.test_results = {
             "task": "classification",
             "name": self.hparams.name,
             "seed": self.hparams.seed,
             "num_touches": self.num_touches,
             "accuracy": accuracy,
+            "per_class": per_class,
+            "confusion": confusion,
+            "classes": names,
         }
 
     def configure_optimizers(self) -> Any:

@@ -1,0 +1,146 @@
+"""Per-class accuracy and confusion matrices of the tactile classifiers (Table 2's detail, issue 12).
+
+Each classification result (``metrics.json`` of :class:`~tvrecon.models.lit_cls.ClassificationModule`) holds, per
+touch count k, a confusion matrix (rows: true class, columns: predicted) over the test draws. Here they are summed
+over the runs (seeds) of each k:
+
+- :func:`build_per_class_table`: one row per class, accuracy (%) with k touches as mean +- std over the runs;
+- :func:`plot_confusion`: a row-normalised confusion matrix as a PNG (the rows are true classes, so the diagonal is
+  the per-class accuracy);
+- :func:`write_confusion_plots`: the fewest and the most touches evaluated, ``confusion_<k>touch.png``.
+
+Runs of different models (experiment names) are kept apart: with more than one model the table's columns and the
+file names carry the model's name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tvrecon.seed_summary import mean_std
+from tvrecon.tables import CLS_TOUCHES, PRETTY_NAMES, Table, _check_results
+
+__all__ = ["build_per_class_table", "confusion_by_touches", "plot_confusion", "write_confusion_plots"]
+
+
+def _cls(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """The classification results that carry confusion matrices (older ``metrics.json`` files do not)."""
+    return [r for r in _check_results(results) if r["task"] == "classification" and r.get("confusion")]
+
+
+def _by_model(results: Iterable[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in _cls(results):
+        groups.setdefault(str(r["name"]), []).append(r)
+    return groups
+
+
+def confusion_by_touches(results: Iterable[Mapping[str, Any]]) -> dict[int, tuple[np.ndarray, list[str], int]]:
+    """Confusion matrices summed over the runs (of one model), per touch count.
+
+    Returns:
+        {k: (counts (C, C) int64, class names (C,), number of runs)}.
+
+    Raises:
+        ValueError: two runs with the same k disagree on the class names.
+    """
+    out: dict[int, tuple[np.ndarray, list[str], int]] = {}
+    for r in _cls(results):
+        names = [str(c) for c in r.get("classes", [])]
+        for k, matrix in r["confusion"].items():
+            m = np.asarray(matrix, dtype=np.int64)
+            if m.ndim != 2 or m.shape[0] != m.shape[1]:
+                raise ValueError(f"confusion matrix for {k} touches must be square, got shape {m.shape}")
+            run_names = names if len(names) == m.shape[0] else [f"class{i}" for i in range(m.shape[0])]
+            if int(k) in out:
+                total, known, n = out[int(k)]
+                if known != run_names:
+                    raise ValueError(f"runs with {k} touches have different classes: {known} vs {run_names}")
+                out[int(k)] = (total + m, known, n + 1)
+            else:
+                out[int(k)] = (m, run_names, 1)
+    return dict(sorted(out.items()))
+
+
+def build_per_class_table(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
+    """Per-class accuracy (%) by touch count: mean +- sample std over the runs that tested that class with k.
+
+    One column per touch count (and model, when the results hold several)."""
+    groups = _by_model(results)
+    columns: list[tuple[str, int]] = [
+        (name, k)
+        for name, runs in groups.items()
+        for k in touches
+        if any(str(k) in r.get("per_class", {}) for r in runs)
+    ]
+    classes: list[str] = []
+    for name, k in columns:
+        for r in groups[name]:
+            classes += [c for c in r.get("per_class", {}).get(str(k), {}) if c not in classes]
+    rows = []
+    for c in classes:
+        row = [c]
+        for name, k in columns:
+            found = [r["per_class"][str(k)] for r in groups[name] if c in r.get("per_class", {}).get(str(k), {})]
+            values = [100.0 * float(per_class[c]) for per_class in found]
+            if values:
+                mean, std = mean_std(values)
+                row.append(f"{mean:.1f} +- {std:.1f}")
+            else:
+                row.append("-")
+        rows.append(row)
+    several = len(groups) > 1
+    header = ["Class"] + [f"{PRETTY_NAMES.get(n, n)} {k}-touch" if several else f"{k}-touch" for n, k in columns]
+    notes = [
+        "Accuracy (%) of each class's test draws, mean +- sample std over the runs (seeds) of each touch count; "
+        "the confusion matrices summed over those runs are confusion_<k>touch.png."
+    ]
+    return Table("Table 2 per class: accuracy (%) by touches", header, rows, notes)
+
+
+def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, title: str) -> Path:
+    """Row-normalised confusion matrix (true class down, predicted across) as a PNG, written atomically.
+
+    Args:
+        counts: (C, C) int counts, rows = true class.
+        names: (C,) class names.
+        path: output ``.png``.
+        title: figure title.
+    """
+    from tvrecon.viz import _atomic_savefig, plt
+
+    counts = np.asarray(counts, dtype=np.float64)
+    if counts.ndim != 2 or counts.shape[0] != counts.shape[1] or counts.shape[0] != len(names):
+        raise ValueError(f"counts must be (C, C) with C = len(names) = {len(names)}, got {counts.shape}")
+    rows = counts.sum(1, keepdims=True)
+    share = np.divide(counts, rows, out=np.zeros_like(counts), where=rows > 0)
+    C = len(names)
+    fig, ax = plt.subplots(figsize=(2.0 + 0.28 * C, 1.5 + 0.28 * C))
+    im = ax.imshow(share, cmap="Blues", vmin=0.0, vmax=1.0)
+    ax.set_xticks(range(C), names, rotation=90, fontsize=7)
+    ax.set_yticks(range(C), names, fontsize=7)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    accuracy = float(np.trace(counts) / max(counts.sum(), 1.0))
+    ax.set_title(f"{title}\naccuracy {100 * accuracy:.1f}% over {int(counts.sum())} test draws", fontsize=9)
+    fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, label="share of the true class")
+    return _atomic_savefig(fig, path, dpi=110)
+
+
+def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
+    """``confusion_<k>touch.png`` in ``out_dir`` for the fewest and the most touches evaluated (summed over runs);
+    ``confusion_<model>_<k>touch.png`` when the results hold several models."""
+    groups = _by_model(results)
+    paths = []
+    for name, runs in groups.items():
+        by_k = confusion_by_touches(runs)
+        stem = f"confusion_{name}_" if len(groups) > 1 else "confusion_"
+        for k in sorted({min(by_k), max(by_k)}):
+            counts, names, n = by_k[k]
+            title = f"{PRETTY_NAMES.get(name, name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
+            paths.append(plot_confusion(counts, names, Path(out_dir) / f"{stem}{k}touch.png", title))
+    return paths
