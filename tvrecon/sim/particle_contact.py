@@ -27,6 +27,7 @@ and ``MeshCollider`` by trilinear interpolation). It costs a second G2P per step
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -39,7 +40,7 @@ from .mpm_grid import Stencil, stencil_offsets
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
 
-__all__ = ["CONTACT_MODES", "collide_particles", "particle_contact_step", "scatter_to_nodes", "scene_slices"]
+__all__ = ["CONTACT_MODES", "collide_particles", "particle_contact_step", "stencil_nodes", "scene_slices"]
 
 #: ``MPMConfig.contact`` values: "grid" (the default node collider, the simulator contract) or "particle" (here).
 CONTACT_MODES = ("grid", "particle")
@@ -48,6 +49,13 @@ CONTACT_MODES = ("grid", "particle")
 #: penetration the grid smoothing lets through). 0.5: measured 0.15 cells of penetration at 1.5 cells depth (64-grid
 #: tests' scene), against 0.29 with 0.2 and 0.08 with 1.0; exponents alike, the force 10% higher at 1.0.
 PUSH_OUT = 0.5
+
+#: The push-out never asks for more than this many cells per step (a particle pushed deep inside by a sharp feature
+#: comes out over several steps instead of being shot out).
+PUSH_CAP_CELLS = 0.05
+
+#: Jacobi passes of the grid-mediated particle impulse per step (:func:`particle_contact_step`).
+ITERATIONS = 3
 
 
 def scene_slices(batch: Tensor | None, B: int, block: int | None) -> list[slice | Tensor]:
@@ -69,6 +77,7 @@ def collide_particles(
     dt: float,
     friction: float = 0.0,
     push_out: float = 0.0,
+    push_cap: float = math.inf,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Speculative non-penetration of each scene's particles against its rigid collider (see the module docstring).
 
@@ -80,6 +89,7 @@ def collide_particles(
         scenes: the particles of each scene (:func:`scene_slices`), same length as ``colliders``.
         dt: time step. friction: Coulomb coefficient (0 = frictionless slip).
         push_out: fraction of its depth a particle found inside is sent back out this step (0: it only stops).
+        push_cap: the largest outward normal velocity the push-out asks for (domain units / s).
 
     Returns:
         the corrected (P, 3) velocity, the (B, 3) force of each collider on its scene's particles and the (P, 3)
@@ -106,7 +116,8 @@ def collide_particles(
         n = col.normal(xq).to(vb.dtype)  # (Pb, 3)
         vn = (vb * n).sum(1)  # (Pb,)
         # the least normal velocity that does not cross the surface within this step
-        floor_vn = -(torch.clamp(phi, min=0.0) + push_out * torch.clamp(phi, max=0.0)) / dt
+        out = torch.clamp(-push_out * torch.clamp(phi, max=0.0) / dt, max=push_cap)  # (Pb,) >= 0
+        floor_vn = out - torch.clamp(phi, min=0.0) / dt
         dvn = torch.clamp(floor_vn - vn, min=0.0)  # (Pb,) >= 0: normal velocity the body adds
         vt = vb - vn[:, None] * n
         if friction > 0:
@@ -129,20 +140,11 @@ def collide_particles(
     return v_out, force, particle_force
 
 
-def scatter_to_nodes(st: Stencil, values: Tensor, strides: tuple[int, int]) -> Tensor:
-    """Scatter per-particle vectors to the block grid with the transfer's B-spline weights (as P2G, paper eq. 6).
-
-    Args:
-        st: the step's stencil (``lin`` (P,), ``w`` (27, P), ``n_nodes`` N). values: (P, 3).
-        strides: (S0, S1) node-axis strides of i and j.
-    Returns:
-        (N, 3) ``sum_p w_ip values_p``.
-    """
-    S0, S1 = strides
-    o = stencil_offsets(values.device, torch.int64)  # (27, 3)
-    idx = st.lin[None, :] + (o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2])[:, None]  # (27, P) stencil nodes
-    contrib = (st.w.to(values.dtype)[:, :, None] * values[None]).reshape(-1, 3)  # (27 P, 3)
-    return torch.zeros(st.n_nodes, 3, dtype=values.dtype, device=values.device).index_add(0, idx.reshape(-1), contrib)
+def stencil_nodes(st: Stencil) -> Tensor:
+    """(27, P) int64 block-grid index of each particle's 27 stencil nodes (offsets (i, j, k), i slowest)."""
+    S0, S1 = st.D[1] * st.D[2], st.D[2]
+    o = stencil_offsets(st.lin.device, torch.int64)  # (27, 3)
+    return st.lin[None, :] + (o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2])[:, None]
 
 
 def particle_contact_step(
@@ -159,27 +161,42 @@ def particle_contact_step(
     """G2P (paper eq. 8-11) with the rigid bodies acting on the particles; sets ``solver.last_force`` (B, 3) and the
     (P, 3) particle forces that ``solver.last_particle_force`` returns.
 
-    1. a trial G2P of the collider-free grid velocities ``gv`` (N, 3) gives each particle's velocity (eq. 8);
-    2. :func:`collide_particles` gives the impulse ``J_p = m_p dv_p`` that keeps each particle out of the bodies
-       (and moves a particle found inside back out by ``PUSH_OUT`` of its depth);
-    3. the impulses are scattered to the grid like momentum (eq. 6): ``v_i += sum_p w_ip J_p / m_i``;
-    4. G2P of the corrected grid (eq. 8-11).
+    ``ITERATIONS`` times: gather each particle's velocity (eq. 8) from the grid velocities ``gv`` (N, 3); let
+    :func:`collide_particles` give the impulse ``J_p = m_p dv_p`` that keeps it out of the bodies (and moves a particle
+    found inside back out by ``PUSH_OUT`` of its depth); scatter the impulses to the grid like momentum (eq. 6):
+    ``v_i += sum_p w_ip J_p / m_i``. Then G2P of the corrected grid (eq. 8-11). A particle with ``alpha_p < 1``
+    follows the grid only in part (eq. 8), so its impulse is ``alpha_p J_p``: the rigid hand (``alpha = 0``) is not
+    held by the object (its impulse could never reach it and would pile up on the grid).
 
     The impulse acts through the grid, like any external force, so a held particle's ``C`` (eq. 9) and ``F`` (eq. 11)
-    see the held velocity field. (Correcting the particle velocity alone leaves the grid below a held particle free:
-    its stress then leaks away through ``C``; measured: half the force at 0.03 of the P-wave speed.) The smoothing of
-    step 3 lets a particle sink a little (0.15 cells at 1.5 cells depth in the tests' scene), corrected at the next
-    steps.
+    see the held velocity field. (Correcting the particle velocities alone leaves the grid below a held particle free:
+    its stress then leaks away through ``C``; measured: half the force at 0.03 of the P-wave speed.) One scatter
+    shares a particle's impulse with the neighbours of its nodes, so it is repeated on what is left (Jacobi
+    iterations); what the last one leaves lets a particle sink a little, corrected at the next steps.
     """
     scenes = scene_slices(state.batch, B, block)
-    dt = solver.dt
-    trial = solver._g2p(state, st, gv, hand_velocity, alpha)
-    _, force, f_p = collide_particles(
-        state.x, trial.v, state.mass, colliders, scenes, dt, solver.cfg.friction, PUSH_OUT
-    )
+    dt, mu_f = solver.dt, solver.cfg.friction
+    cap = PUSH_CAP_CELLS * solver.dx / dt
     gm = solver._last_transfer.node_mass.to(gv.dtype)
-    dp = scatter_to_nodes(st, f_p * dt, (st.D[1] * st.D[2], st.D[2]))  # (N, 3) momentum the bodies give the nodes
-    gv = gv + dp / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]
-    solver.last_force = force
-    solver._particle_contact_force = f_p.detach()
+    inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))[:, None]
+    idx = stencil_nodes(st)  # (27, P)
+    w = st.w.to(gv.dtype)[:, :, None]  # (27, P, 1)
+    total = None
+    for _ in range(ITERATIONS):
+        v = (w * gv[idx]).sum(0)  # (P, 3) sum_i w_ip v_i
+        if alpha is not None:  # paper eq. 8 (eq:particle_v)
+            hv = torch.zeros(3, dtype=v.dtype, device=v.device) if hand_velocity is None else hand_velocity
+            v = alpha[:, None] * v + (1.0 - alpha[:, None]) * hv
+        _, _, f_p = collide_particles(state.x, v, state.mass, colliders, scenes, dt, mu_f, PUSH_OUT, cap)
+        if alpha is not None:  # the grid moves only the alpha share of a particle (eq. 8): the hand is not held
+            f_p = alpha[:, None] * f_p
+        dp = torch.zeros_like(gv).index_add(0, idx.reshape(-1), (w * (f_p * dt)[None]).reshape(-1, 3))  # (N, 3)
+        gv = gv + dp * inv_m
+        total = f_p if total is None else total + f_p
+    assert total is not None
+    force = torch.stack([total[sel].sum(0) for sel in scenes])  # (B, 3)
+    solver.last_force = torch.where(
+        torch.tensor([c is not None for c in colliders], device=force.device)[:, None], force, torch.zeros_like(force)
+    )
+    solver._particle_contact_force = total.detach()
     return solver._g2p(state, st, gv, hand_velocity, alpha)

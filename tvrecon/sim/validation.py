@@ -285,14 +285,16 @@ def free_slab_impact(
     nu: float = 0.25,
     spacing: float = 0.5,
     dtype: torch.dtype = torch.float32,
+    contact: str = "grid",
 ) -> dict[str, float]:
-    """A free slab (alpha = 1, no hand) thrown down, slightly sideways, at a rigid sphere (friction 0.5).
+    """A free slab (alpha = 1, no hand) thrown down, slightly sideways, at a rigid sphere (friction 0.5), with
+    ``MPMConfig.contact`` = ``contact``.
 
     Without a hand the only external force is the collider's, so the change of total momentum ``sum m v`` must equal
     the collider impulse ``sum_steps last_force dt``. Returns the momentum change, the impulse (both (3,)), the
     initial momentum magnitude and the largest relative mismatch ``|dp - J| / |p0|``."""
     dx = 1.0 / n_grid
-    solver = MLSMPM(MPMConfig(n_grid=n_grid, E=E, nu=nu, friction=0.5))
+    solver = MLSMPM(MPMConfig(n_grid=n_grid, E=E, nu=nu, friction=0.5, contact=contact))
     c = p_wave_speed(E, nu, 1.0)
     lat = slab_lattice(width, thick, spacing).to(dtype)
     x0 = lat * dx + torch.tensor([0.5, 0.5, 0.5 + 2.0 * dx], dtype=dtype)
