@@ -40,7 +40,15 @@ from .mpm_grid import Stencil, stencil_offsets
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
 
-__all__ = ["CONTACT_MODES", "collide_particles", "particle_contact_step", "stencil_nodes", "scene_slices"]
+__all__ = [
+    "CONTACT_MODES",
+    "collide_particles",
+    "contact_velocity",
+    "near_surface",
+    "particle_contact_step",
+    "scene_slices",
+    "stencil_nodes",
+]
 
 #: ``MPMConfig.contact`` values: "grid" (the default node collider, the simulator contract) or "particle" (here).
 CONTACT_MODES = ("grid", "particle")
@@ -68,6 +76,70 @@ def scene_slices(batch: Tensor | None, B: int, block: int | None) -> list[slice 
     return [batch == b for b in range(B)]
 
 
+def contact_velocity(
+    v: Tensor,
+    phi: Tensor,
+    n: Tensor,
+    dt: float,
+    friction: float = 0.0,
+    push_out: float = 0.0,
+    push_cap: float = math.inf,
+) -> Tensor:
+    """The velocity of particles at signed distance ``phi`` from a body with outward normal ``n`` after the contact
+    (see the module docstring): ``v_n' = max(v_n, -phi / dt)`` outside, ``max(v_n, min(-push_out phi / dt,
+    push_cap))`` inside, the tangential part reduced by Coulomb friction.
+
+    Args:
+        v: (K, 3) velocities. phi: (K,) signed distances. n: (K, 3) unit outward normals. dt: time step.
+        friction: Coulomb coefficient (0 = frictionless slip).
+        push_out: fraction of its depth a particle found inside is sent back out this step (0: it only stops).
+        push_cap: the largest outward normal velocity the push-out asks for (domain units / s).
+    Returns:
+        (K, 3) velocities.
+    """
+    vn = (v * n).sum(1)  # (K,)
+    out = torch.clamp(-push_out * torch.clamp(phi, max=0.0) / dt, max=push_cap)  # (K,) >= 0
+    floor_vn = out - torch.clamp(phi, min=0.0) / dt  # the least normal velocity that does not cross the surface
+    dvn = torch.clamp(floor_vn - vn, min=0.0)  # (K,) >= 0: normal velocity the body adds
+    if friction <= 0:
+        return v + dvn[:, None] * n
+    vt = v - vn[:, None] * n
+    vt_norm = vt.norm(dim=1, keepdim=True)
+    safe = torch.where(vt_norm > 0, vt_norm, torch.ones_like(vt_norm))
+    vt = vt * torch.clamp(1.0 - friction * dvn[:, None] / safe, min=0.0)
+    return torch.where((dvn > 0)[:, None], vt + (vn + dvn)[:, None] * n, v)
+
+
+def near_surface(
+    x: Tensor, colliders: Sequence[Collider | None], scenes: Sequence[slice | Tensor], reach: float
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The particles within ``reach`` of their scene's body (the only ones a contact can touch this step).
+
+    Args:
+        x: (P, 3) positions. colliders: one collider (or None) per scene. scenes: the particles of each scene
+            (:func:`scene_slices`). reach: distance (domain units).
+    Returns:
+        their (K,) int64 particle indices, (K,) int64 scene indices, (K,) signed distances and (K, 3) unit normals.
+    """
+    all_idx = torch.arange(x.shape[0], device=x.device)
+    found: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
+    for b, col in enumerate(colliders):
+        if col is None:
+            continue
+        idx = all_idx[scenes[b]]
+        xb = x[idx]
+        phi = col.sdf(xb if xb.requires_grad else xb.detach())
+        keep = torch.nonzero(phi.detach() < reach).flatten()
+        if keep.numel():
+            xk = xb[keep]
+            n = col.normal(xk if xk.requires_grad else xk.detach()).to(x.dtype)
+            found.append((idx[keep], torch.full_like(keep, b), phi[keep].to(x.dtype), n))
+    if not found:
+        e = torch.zeros(0, dtype=torch.int64, device=x.device)
+        return e, e, x.new_zeros(0), x.new_zeros(0, 3)
+    return tuple(torch.cat(t) for t in zip(*found))  # type: ignore[return-value]
+
+
 def collide_particles(
     x: Tensor,
     v: Tensor,
@@ -79,7 +151,7 @@ def collide_particles(
     push_out: float = 0.0,
     push_cap: float = math.inf,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """Speculative non-penetration of each scene's particles against its rigid collider (see the module docstring).
+    """:func:`contact_velocity` of each scene's particles against its rigid collider, applied to the particles alone.
 
     Args:
         x: (P, 3) particle positions at the start of the step (domain units).
@@ -87,9 +159,7 @@ def collide_particles(
         mass: (P,) particle masses.
         colliders: one collider (or None) per scene.
         scenes: the particles of each scene (:func:`scene_slices`), same length as ``colliders``.
-        dt: time step. friction: Coulomb coefficient (0 = frictionless slip).
-        push_out: fraction of its depth a particle found inside is sent back out this step (0: it only stops).
-        push_cap: the largest outward normal velocity the push-out asks for (domain units / s).
+        dt, friction, push_out, push_cap: as :func:`contact_velocity`.
 
     Returns:
         the corrected (P, 3) velocity, the (B, 3) force of each collider on its scene's particles and the (P, 3)
@@ -102,42 +172,13 @@ def collide_particles(
     if len(scenes) != len(colliders):
         raise ValueError(f"need one particle selection per collider, got {len(scenes)} for {len(colliders)}")
     B = len(colliders)
-    force = torch.zeros(B, 3, dtype=v.dtype, device=v.device)
-    if all(c is None for c in colliders):
-        return v, force, torch.zeros_like(v)
-    pieces = []
-    for b, col in enumerate(colliders):
-        if col is None:
-            continue
-        sel = scenes[b]
-        xb, vb = x[sel], v[sel]
-        xq = xb.detach() if not xb.requires_grad else xb
-        phi = col.sdf(xq).to(vb.dtype)  # (Pb,)
-        n = col.normal(xq).to(vb.dtype)  # (Pb, 3)
-        vn = (vb * n).sum(1)  # (Pb,)
-        # the least normal velocity that does not cross the surface within this step
-        out = torch.clamp(-push_out * torch.clamp(phi, max=0.0) / dt, max=push_cap)  # (Pb,) >= 0
-        floor_vn = out - torch.clamp(phi, min=0.0) / dt
-        dvn = torch.clamp(floor_vn - vn, min=0.0)  # (Pb,) >= 0: normal velocity the body adds
-        vt = vb - vn[:, None] * n
-        if friction > 0:
-            vt_norm = vt.norm(dim=1, keepdim=True)
-            safe = torch.where(vt_norm > 0, vt_norm, torch.ones_like(vt_norm))
-            vt = vt * torch.clamp(1.0 - friction * dvn[:, None] / safe, min=0.0)
-            vb_new = torch.where((dvn > 0)[:, None], vt + (vn + dvn)[:, None] * n, vb)
-        else:
-            vb_new = vb + dvn[:, None] * n
-        pieces.append((b, sel, vb_new))
-    if len(pieces) == 1 and isinstance(pieces[0][1], slice) and pieces[0][1] == slice(None):
-        v_out = pieces[0][2]
-    else:
-        v_out = v.clone()
-        for _, sel, vb_new in pieces:
-            v_out[sel] = vb_new
-    particle_force = mass[:, None].to(v.dtype) * (v_out - v) / dt  # (P, 3)
-    for b, sel, _ in pieces:
-        force[b] = particle_force[sel].sum(0)
-    return v_out, force, particle_force
+    reach = float(v.detach().norm(dim=1).amax()) * dt if v.numel() else 0.0
+    cand, scene, phi, n = near_surface(x, colliders, scenes, max(reach, 0.0) + 1e-12)
+    vc = v[cand]
+    f = mass[cand, None].to(v.dtype) * (contact_velocity(vc, phi, n, dt, friction, push_out, push_cap) - vc) / dt
+    particle_force = torch.zeros_like(v).index_add(0, cand, f)  # (P, 3)
+    force = torch.zeros(B, 3, dtype=v.dtype, device=v.device).index_add(0, scene, f)
+    return v + particle_force * dt / mass[:, None].to(v.dtype), force, particle_force
 
 
 def stencil_nodes(st: Stencil) -> Tensor:
@@ -161,12 +202,14 @@ def particle_contact_step(
     """G2P (paper eq. 8-11) with the rigid bodies acting on the particles; sets ``solver.last_force`` (B, 3) and the
     (P, 3) particle forces that ``solver.last_particle_force`` returns.
 
-    ``ITERATIONS`` times: gather each particle's velocity (eq. 8) from the grid velocities ``gv`` (N, 3); let
-    :func:`collide_particles` give the impulse ``J_p = m_p dv_p`` that keeps it out of the bodies (and moves a particle
-    found inside back out by ``PUSH_OUT`` of its depth); scatter the impulses to the grid like momentum (eq. 6):
-    ``v_i += sum_p w_ip J_p / m_i``. Then G2P of the corrected grid (eq. 8-11). A particle with ``alpha_p < 1``
-    follows the grid only in part (eq. 8), so its impulse is ``alpha_p J_p``: the rigid hand (``alpha = 0``) is not
-    held by the object (its impulse could never reach it and would pile up on the grid).
+    Only the particles within a cell of a body can reach it in one step (the grid moves less than a cell per step):
+    :func:`near_surface` finds them and their signed distances and normals once. Then ``ITERATIONS`` times: gather
+    their velocity (eq. 8) from the grid velocities ``gv`` (N, 3); :func:`contact_velocity` gives the impulse ``J_p =
+    m_p dv_p`` that keeps each out of the bodies (and moves one found inside back out by ``PUSH_OUT`` of its depth);
+    scatter the impulses to the grid like momentum (eq. 6): ``v_i += sum_p w_ip J_p / m_i``. Then G2P of the
+    corrected grid (eq. 8-11). A particle with ``alpha_p < 1`` follows the grid only in part (eq. 8), so its impulse
+    is ``alpha_p J_p``: the rigid hand (``alpha = 0``) is not held by the object (its impulse could never reach it and
+    would pile up on the grid).
 
     The impulse acts through the grid, like any external force, so a held particle's ``C`` (eq. 9) and ``F`` (eq. 11)
     see the held velocity field. (Correcting the particle velocities alone leaves the grid below a held particle free:
@@ -174,29 +217,33 @@ def particle_contact_step(
     shares a particle's impulse with the neighbours of its nodes, so it is repeated on what is left (Jacobi
     iterations); what the last one leaves lets a particle sink a little, corrected at the next steps.
     """
-    scenes = scene_slices(state.batch, B, block)
-    dt, mu_f = solver.dt, solver.cfg.friction
-    cap = PUSH_CAP_CELLS * solver.dx / dt
-    gm = solver._last_transfer.node_mass.to(gv.dtype)
-    inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))[:, None]
-    idx = stencil_nodes(st)  # (27, P)
-    w = st.w.to(gv.dtype)[:, :, None]  # (27, P, 1)
-    total = None
-    for _ in range(ITERATIONS):
-        v = (w * gv[idx]).sum(0)  # (P, 3) sum_i w_ip v_i
-        if alpha is not None:  # paper eq. 8 (eq:particle_v)
-            hv = torch.zeros(3, dtype=v.dtype, device=v.device) if hand_velocity is None else hand_velocity
-            v = alpha[:, None] * v + (1.0 - alpha[:, None]) * hv
-        _, _, f_p = collide_particles(state.x, v, state.mass, colliders, scenes, dt, mu_f, PUSH_OUT, cap)
-        if alpha is not None:  # the grid moves only the alpha share of a particle (eq. 8): the hand is not held
-            f_p = alpha[:, None] * f_p
-        dp = torch.zeros_like(gv).index_add(0, idx.reshape(-1), (w * (f_p * dt)[None]).reshape(-1, 3))  # (N, 3)
-        gv = gv + dp * inv_m
-        total = f_p if total is None else total + f_p
-    assert total is not None
-    force = torch.stack([total[sel].sum(0) for sel in scenes])  # (B, 3)
-    solver.last_force = torch.where(
-        torch.tensor([c is not None for c in colliders], device=force.device)[:, None], force, torch.zeros_like(force)
-    )
-    solver._particle_contact_force = total.detach()
+    P = state.x.shape[0]
+    dt, dx, mu_f = solver.dt, solver.dx, solver.cfg.friction
+    cand, scene, phi, n = near_surface(state.x, colliders, scene_slices(state.batch, B, block), dx)
+    K = cand.numel()
+    total = gv.new_zeros(K, 3)
+    if K:
+        gm = solver._last_transfer.node_mass.to(gv.dtype)
+        inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))[:, None]
+        idx = stencil_nodes(st)[:, cand]  # (27, K)
+        w = st.w[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
+        m = state.mass[cand, None].to(gv.dtype)  # (K, 1)
+        a = None if alpha is None else alpha[cand, None]  # (K, 1)
+        hv = None
+        if a is not None:
+            hv = torch.zeros(3, dtype=gv.dtype, device=gv.device) if hand_velocity is None else hand_velocity
+            hv = hv[cand] if hv.dim() == 2 else hv
+        cap = PUSH_CAP_CELLS * dx / dt
+        for _ in range(ITERATIONS):
+            v = (w * gv[idx]).sum(0)  # (K, 3) sum_i w_ip v_i
+            if a is not None:
+                v = a * v + (1.0 - a) * hv  # paper eq. 8 (eq:particle_v)
+            f = m * (contact_velocity(v, phi, n, dt, mu_f, PUSH_OUT, cap) - v) / dt  # (K, 3)
+            if a is not None:
+                f = a * f
+            dp = torch.zeros_like(gv).index_add(0, idx.reshape(-1), (w * (f * dt)[None]).reshape(-1, 3))  # (N, 3)
+            gv = gv + dp * inv_m
+            total = total + f
+    solver.last_force = gv.new_zeros(B, 3).index_add(0, scene, total)
+    solver._particle_contact_force = gv.new_zeros(P, 3).index_add(0, cand, total.detach())
     return solver._g2p(state, st, gv, hand_velocity, alpha)
