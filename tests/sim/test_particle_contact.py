@@ -179,3 +179,13 @@ def test_physical_stop_gives_one_depth_across_grids():
         depth[n] = r.depth / n  # domain units
     assert depth[64] > 0
     assert depth[64] / depth[128] == pytest.approx(1.0, abs=0.1)
+
+
+def test_cli_takes_the_contact_and_threshold_grid(tmp_path) -> None:
+    from tvrecon.sim.__main__ import main
+
+    out = tmp_path / "run"
+    args = ["press", "--shape", "sphere", "--out", str(out), "--resolution", "8", "--layers", "4", "--n-grid", "32"]
+    assert main(args + ["--contact", "particle", "--threshold-grid", "64", "--frames", "2", "--ply", "0"]) == 0
+    data = np.load(out / "reading.npz")
+    assert bool(data["contact"]) and float(data["image"][2].max()) > 0
