@@ -50,16 +50,17 @@ def test_contact_starts_when_the_particles_reach_the_surface(particle_press):
 def test_hertz_exponents_at_every_apex_offset(particle_press):
     r = particle_press
     dmax = SCENE["max_depth"]
-    f_at_1 = []
+    f_half = []
     for b in range(len(OFFSETS)):
         d = r.depth[b]
         # measured: force 1.54-1.79, radius (second moment) 0.46-0.50, radius (contact area) 0.50-0.53
         assert 1.45 < loglog_slope(d, r.force[b], 0.75, dmax) < 2.0, OFFSETS[b]
         assert 0.4 < loglog_slope(d, r.radius[b], 0.75, dmax) < 0.6, OFFSETS[b]
         assert 0.4 < loglog_slope(d, r.area_radius[b], 0.75, dmax) < 0.6, OFFSETS[b]
-        f_at_1.append(float(np.interp(1.0, d, r.force[b])))
-    # the force no longer depends on where the apex sits between node planes (the grid contact: up to 2x at d < 1)
-    assert max(f_at_1) / min(f_at_1) < 1.15
+        f_half.append(float(np.interp(0.5, d, r.force[b])))
+    # the force hardly depends on where the apex sits between node planes: at d = 0.5 cells the offsets differ by
+    # 1.10x (measured), against 1.48x with the grid contact in this scene
+    assert max(f_half) / min(f_half) < 1.2
 
 
 def test_particles_rest_on_a_plane_at_any_offset_from_the_node_planes():
