@@ -26,6 +26,7 @@ from tvrecon.sim.materials import lame_parameters, p_wave_speed
 from tvrecon.sim.mpm import MPMConfig, cfl_dt
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import SensorConfig
+from tvrecon.sim.stop_rules import DEFAULT_THRESHOLD
 from tvrecon.sim.validation import (
     free_oscillation,
     free_slab_impact,
@@ -78,13 +79,14 @@ def _cpu() -> float:
 
 
 # ---------------------------------------------------------------------------------------------------- 1. Hertz
-def bench_hertz(size: dict) -> dict:
+def bench_hertz(size: dict, contact: str = "grid") -> dict:
+    """Hertz press at the four apex offsets and the thick reference, with ``MPMConfig.contact`` = ``contact``."""
     h = size["hertz"]
     t0 = _cpu()
-    thin = slab_press(OFFSETS, E=E0, nu=NU0, **h)
+    thin = slab_press(OFFSETS, E=E0, nu=NU0, contact=contact, **h)
     t_thin = _cpu() - t0
     t0 = _cpu()
-    thick = slab_press((0.5,), E=E0, nu=NU0, **{**h, "thick": size["thick_ref"]})
+    thick = slab_press((0.5,), E=E0, nu=NU0, contact=contact, **{**h, "thick": size["thick_ref"]})
     t_thick = _cpu() - t0
     R, dx, hh, dmax = h["R"], thin.dx, h["thick"], h["max_depth"]
     lo = 0.75  # fit range in cells: from 3/4 cell to the final depth
@@ -100,6 +102,7 @@ def bench_hertz(size: dict) -> dict:
                 "first_contact_depth": first,
                 "force_exponent": loglog_slope(d, f, lo, dmax),
                 "radius_exponent": loglog_slope(d, a, lo, dmax),
+                "area_radius_exponent": loglog_slope(d, thin.area_radius[b], lo, dmax),
                 "force_exponent_from_first": loglog_slope(d - first, f, lo, dmax),
                 "F/F_hertz": f2 / float(hertz_force(E0, NU0, R * dx, d_cmp * dx)),
                 "F/F_winkler": f2 / float(winkler_force(E0, NU0, R * dx, hh * dx, d_cmp * dx)),
@@ -120,6 +123,7 @@ def bench_hertz(size: dict) -> dict:
         "F_thin/F_thick": float(np.interp(d_cmp, thin.depth[2], thin.force[2])) / f2,
     }
     return {
+        "contact": contact,
         "cfg": h,
         "d_cmp": d_cmp,
         "hertz_a": float(hertz_radius(R, d_cmp)),
@@ -208,8 +212,17 @@ def _corr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a * b).sum() / (a.norm() * b.norm()).clamp(min=1e-30))
 
 
-def bench_resolution(size: dict) -> dict:
+#: reference grid of the physical stop threshold (``PressConfig.threshold_grid``): the default threshold's meaning at
+#: the default n_grid
+THRESHOLD_GRID = 128
+
+
+def bench_resolution(size: dict, contact: str = "grid", threshold_grid: int | None = None) -> dict:
+    """Depth at the terminal-chamfer stop over ``size["grids"]`` and the image correlation of ``size["pair"]`` at one
+    physical depth, with ``PressConfig.contact`` and ``threshold_grid`` as given (defaults: the default press)."""
     from tvrecon.sim.__main__ import load_shape
+
+    opts = {"contact": contact, "threshold_grid": threshold_grid}
 
     mesh = load_shape("gear")
     direction = [0.0, 0.0, -1.0]
@@ -218,19 +231,20 @@ def bench_resolution(size: dict) -> dict:
     t0 = _cpu()
     stops = []
     for n in size["grids"]:
-        r = EIPSimulator(scaled_pad(n), PressConfig(n_grid=n)).press(mesh, pos, direction)
+        r = EIPSimulator(scaled_pad(n), PressConfig(n_grid=n, **opts)).press(mesh, pos, direction)
         stops.append({"n_grid": n, "depth_cells": r.depth, "depth_domain": r.depth / n, "steps": r.steps})
     base = stops[-1]["depth_domain"]
     for s in stops:
-        s["rel_to_finest"] = s["depth_domain"] / base
+        s["rel_to_finest"] = s["depth_domain"] / base if base > 0 else float("nan")
     # the same physical depth (1.5 cells of the coarse grid) at both resolutions; images in domain units
     imgs = {}
     for n in (c, f):
-        r = EIPSimulator(scaled_pad(n), PressConfig(n_grid=n, depth=1.5 * n / c)).press(mesh, pos, direction)
+        press = PressConfig(n_grid=n, depth=1.5 * n / c, contact=contact)
+        r = EIPSimulator(scaled_pad(n), press).press(mesh, pos, direction)
         imgs[n] = r.image / n
     fine = torch.nn.functional.avg_pool2d(imgs[f][None], 2)[0]  # fine pixel pairs centred on the coarse pixels
     corr = {"normal": _corr(imgs[c][2], fine[2]), "shear": _corr(imgs[c][:2], fine[:2])}
-    return {"stops": stops, "pair": (c, f), "corr": corr, "images": imgs, "cpu_s": _cpu() - t0}
+    return {**opts, "stops": stops, "pair": (c, f), "corr": corr, "images": imgs, "cpu_s": _cpu() - t0}
 
 
 # ------------------------------------------------------------------------------------------------- 5. momentum, energy
@@ -260,7 +274,13 @@ def plots(res: dict, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    H = res["hertz"]
+    for key, name in (("hertz", "physics_hertz.png"), ("hertz_particle", "physics_hertz_particle.png")):
+        if key in res:
+            _plot_hertz(plt, res[key], out / name)
+    _plot_rest(plt, res, out)
+
+
+def _plot_hertz(plt, H: dict, path: Path) -> None:
     thin, thick = H["thin"], H["thick"]
     R, dx, h = thin.R, thin.dx, thin.thick
     Es = E0 / (1 - NU0**2)
@@ -278,13 +298,17 @@ def plots(res: dict, out: Path) -> None:
     ax[0].loglog(dd, winkler_force(E0, NU0, R * dx, h * dx, dd * dx) / unit, "r:", lw=2, label=f"thin layer h={h:g}")
     ax[1].plot(dd, hertz_radius(R, dd), "k:", lw=2, label="Hertz sqrt(R d)")
     ax[1].plot(dd, winkler_radius(R, dd), "r:", lw=2, label="thin layer sqrt(2 R d)")
-    ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title=f"force, sphere R={R:g} cells", ylim=(1e-1, None))
+    title = f"force, sphere R={R:g} cells, {H['contact']} contact"
+    ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title=title, ylim=(1e-1, None))
     ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius", xlim=(-1.5, None))
     ax[0].legend(fontsize=7)
     ax[1].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "physics_hertz.png", dpi=72)
+    fig.savefig(path, dpi=72)
     plt.close(fig)
+
+
+def _plot_rest(plt, res: dict, out: Path) -> None:
 
     S = res["scaling"]
     fig, ax = plt.subplots(1, 2, figsize=(8, 3.2))
@@ -314,7 +338,15 @@ def plots(res: dict, out: Path) -> None:
     fig.savefig(out / "physics_energy.png", dpi=72)
     plt.close(fig)
 
-    Rz = res["resolution"]
+    for key, name in (
+        ("resolution", "physics_resolution.png"),
+        ("resolution_particle", "physics_resolution_particle.png"),
+    ):
+        if key in res:
+            _plot_images(plt, res[key], out / name)
+
+
+def _plot_images(plt, Rz: dict, path: Path) -> None:
     c, f = Rz["pair"]
     imgs = Rz["images"]
     fine = torch.nn.functional.avg_pool2d(imgs[f][None], 2)[0]
@@ -328,41 +360,48 @@ def plots(res: dict, out: Path) -> None:
         ax[row, 2].set_title(f"n_grid {n}: shear y", fontsize=8)
     for a in ax.flat:
         a.set_axis_off()
-    fig.suptitle(f"gear, same physical depth; {f} pooled 2x2 (corr normal {Rz['corr']['normal']:.3f}, "
-                 f"shear {Rz['corr']['shear']:.3f})", fontsize=9)  # fmt: skip
+    fig.suptitle(f"gear, {Rz['contact']} contact, same physical depth; {f} pooled 2x2 "
+                 f"(corr normal {Rz['corr']['normal']:.3f}, shear {Rz['corr']['shear']:.3f})", fontsize=9)  # fmt: skip
     fig.tight_layout()
-    fig.savefig(out / "physics_resolution.png", dpi=72)
+    fig.savefig(path, dpi=72)
     plt.close(fig)
 
 
 # ---------------------------------------------------------------------------------------------------- report
-def table(res: dict) -> str:
-    L = []
-    H = res["hertz"]
+def _hertz_table(H: dict) -> list[str]:
     c = H["cfg"]
-    L.append(
-        f"## 1. Hertz: sphere R={c['R']:g} cells into a {c['width']:g}-cell pad {c['thick']:g} cells thick "
-        f"(n_grid {c['n_grid']}), fit d in [0.75, {c['max_depth']:g}] cells, ratios at d={H['d_cmp']:g}"
-    )
-    L.append("| apex offset (cell) | first contact at d (cells) | force exponent | force exponent from first contact | "
-             "radius exponent | a (cells) | F / F_Hertz | F / F_thin-layer |")  # fmt: skip
-    L.append("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    L = [
+        f"## 1. Hertz, {H['contact']} contact: sphere R={c['R']:g} cells into a {c['width']:g}-cell pad "
+        f"{c['thick']:g} cells thick (n_grid {c['n_grid']}), fit d in [0.75, {c['max_depth']:g}] cells, ratios at "
+        f"d={H['d_cmp']:g}",
+        "| apex offset (cell) | first contact at d (cells) | force exponent | force exponent from first contact | "
+        "radius exponent | area-radius exponent | a (cells) | F / F_Hertz | F / F_thin-layer |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in H["rows"]:
         L.append(
             f"| {r['offset']:g} | {r['first_contact_depth']:.2f} | {r['force_exponent']:.2f} | "
-            f"{r['force_exponent_from_first']:.2f} | "
-            f"{r['radius_exponent']:.2f} | {r['a']:.2f} | {r['F/F_hertz']:.2f} | {r['F/F_winkler']:.2f} |"
+            f"{r['force_exponent_from_first']:.2f} | {r['radius_exponent']:.2f} | {r['area_radius_exponent']:.2f} | "
+            f"{r['a']:.2f} | {r['F/F_hertz']:.2f} | {r['F/F_winkler']:.2f} |"
         )
     r = H["ref"]
     L.append(
         f"| 0.5, h={r['thick']:g} (half-space ref.) | {r['first_contact_depth']:.2f} | {r['force_exponent']:.2f} | "
-        f"{r['force_exponent_from_first']:.2f} | {r['radius_exponent']:.2f} | "
+        f"{r['force_exponent_from_first']:.2f} | {r['radius_exponent']:.2f} | | "
         f"{r['a']:.2f} | {r['F/F_hertz']:.2f} | |"
     )
     L.append(
         f"\nTheory at d={H['d_cmp']:g}: Hertz a = {H['hertz_a']:.2f}, thin layer a = {H['winkler_a']:.2f} cells; "
-        f"F(h={c['thick']:g}) / F(h={r['thick']:g}) = {r['F_thin/F_thick']:.2f} (offset 0.5)"
+        f"F(h={c['thick']:g}) / F(h={r['thick']:g}) = {r['F_thin/F_thick']:.2f} (offset 0.5)\n"
     )
+    return L
+
+
+def table(res: dict) -> str:
+    L = []
+    for key in ("hertz", "hertz_particle"):
+        if key in res:
+            L += _hertz_table(res[key])
     S = res["scaling"]
     L.append(f"\n## 2. Stiffness scaling: force at d={S['d_cmp']:g} cells, one dt and hand speed for all")
     L.append("| E | F / F(E=3), fixed speed and dt | F / F(E=3), press protocol (0.1 c_p, CFL dt) | E / 3 |")
@@ -386,17 +425,24 @@ def table(res: dict) -> str:
             f"| {prof} | {r['depth']:.2f} | {r['peak']:.2f} | {r['residual_max']:.3f} | "
             f"{r['residual_normal_max']:.3f} | {r['residual_mean']:.3f} |"
         )
-    Z = res["resolution"]
-    L.append("\n## 4. Resolution (gear, pad 1/4 domain wide, 1/32 thick): depth at the default stop")
-    L.append("| n_grid | depth (cells) | depth (domain) | / finest |")
-    L.append("| --- | --- | --- | --- |")
-    for s in Z["stops"]:
-        L.append(f"| {s['n_grid']} | {s['depth_cells']:.2f} | {s['depth_domain']:.4f} | {s['rel_to_finest']:.2f} |")
-    c, f = Z["pair"]
-    L.append(
-        f"\nImage correlation n_grid {c} vs {f} (same physical depth): normal {Z['corr']['normal']:.3f}, "
-        f"shear {Z['corr']['shear']:.3f}"
-    )
+    for key in ("resolution", "resolution_physical", "resolution_particle"):
+        if key not in res:
+            continue
+        Z = res[key]
+        unit = "own cells" if Z["threshold_grid"] is None else f"cells of a {Z['threshold_grid']}-cell grid"
+        L.append(
+            f"\n## 4. Resolution, {Z['contact']} contact (gear, pad 1/4 domain wide, 1/32 thick): depth at the "
+            f"terminal-chamfer stop, threshold {DEFAULT_THRESHOLD} squared {unit}"
+        )
+        L.append("| n_grid | depth (cells) | depth (domain) | / finest |")
+        L.append("| --- | --- | --- | --- |")
+        for s in Z["stops"]:
+            L.append(f"| {s['n_grid']} | {s['depth_cells']:.2f} | {s['depth_domain']:.5f} | {s['rel_to_finest']:.2f} |")
+        c, f = Z["pair"]
+        L.append(
+            f"\nImage correlation n_grid {c} vs {f} (same physical depth): normal {Z['corr']['normal']:.3f}, "
+            f"shear {Z['corr']['shear']:.3f}"
+        )
     C = res["conservation"]
     L.append("\n## 5. Momentum and energy")
     L.append(
@@ -419,16 +465,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", choices=sorted(SIZES), default="small")
     ap.add_argument("--out", type=Path, default=Path("outputs/bench_physics"))
-    ap.add_argument("--only", nargs="*", default=None, help="subset of: hertz scaling release resolution conservation")
+    ap.add_argument("--only", nargs="*", default=None, help="subset of the benches (names in main)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     args.out.mkdir(parents=True, exist_ok=True)
     size = SIZES[args.size]
     benches = {
         "hertz": bench_hertz,
+        "hertz_particle": lambda size: bench_hertz(size, "particle"),
         "scaling": bench_scaling,
         "release": bench_release,
         "resolution": bench_resolution,
+        "resolution_physical": lambda size: bench_resolution(size, "grid", THRESHOLD_GRID),
+        "resolution_particle": lambda size: bench_resolution(size, "particle", THRESHOLD_GRID),
         "conservation": bench_conservation,
     }
     res = {}

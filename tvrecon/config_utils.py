@@ -14,9 +14,22 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["check_known_keys", "coerce_config", "field_names"]
+__all__ = ["OMIT_IF_DEFAULT", "check_known_keys", "coerce_config", "field_names", "omitted_from_key"]
 
 C = TypeVar("C")
+
+#: ``dataclasses.field(metadata=OMIT_IF_DEFAULT)``: a config field added after data was cached. While it holds its
+#: default it stays out of the data cache key (``tvrecon.data.cache``), so the keys of existing samples do not change;
+#: any other value enters the key like every field.
+OMIT_IF_DEFAULT = {"cache_key": "omit_if_default"}
+
+
+def omitted_from_key(f: dataclasses.Field, value: Any) -> bool:
+    """Whether field ``f`` holding ``value`` stays out of a cache key: it is marked ``OMIT_IF_DEFAULT`` and equals
+    its default (a plain ``default``; fields with a ``default_factory`` are never omitted)."""
+    if f.metadata.get("cache_key") != "omit_if_default" or f.default is dataclasses.MISSING:
+        return False
+    return type(value) is type(f.default) and value == f.default
 
 
 def field_names(cls: type) -> tuple[str, ...]:

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from tvrecon.atomic import default_file_mode
+from tvrecon.config_utils import omitted_from_key
 
 log = logging.getLogger(__name__)
 
@@ -44,11 +45,17 @@ _CHECKSUM_FIELD = "__checksum__"
 def _jsonable(obj: Any) -> Any:
     """Convert ``obj`` into plain JSON types (dict with str keys, list, str, int, float, bool, None).
 
-    Dataclasses become dicts, tuples/sets become lists, numpy/torch scalars and arrays become (nested) lists, Paths
-    become strings. Floats go through ``repr`` (shortest round-trip form, exact); non-finite floats are rejected.
+    Dataclasses become dicts (without the fields marked ``config_utils.OMIT_IF_DEFAULT`` that hold their default, so
+    a field added later leaves existing keys unchanged), tuples/sets become lists, numpy/torch scalars and arrays
+    become (nested) lists, Paths become strings. Floats go through ``repr`` (shortest round-trip form, exact);
+    non-finite floats are rejected.
     """
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: _jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {
+            f.name: _jsonable(getattr(obj, f.name))
+            for f in dataclasses.fields(obj)
+            if not omitted_from_key(f, getattr(obj, f.name))
+        }
     if isinstance(obj, Mapping):
         out = {}
         for k, v in obj.items():

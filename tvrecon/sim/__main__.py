@@ -147,6 +147,8 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
         n_grid=args.n_grid,
         depth=args.depth,
         force=args.force,
+        contact=args.contact,
+        threshold_grid=args.threshold_grid,
         record_every=1,
         progress=True,
         release_steps=0,
@@ -294,6 +296,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth", type=float, default=None, help="stop at this indentation (cells)")
     p.add_argument("--force", type=float, default=None, help="stop at this normal force")
     p.add_argument("--profile", choices=("clamped", "linear"), default="clamped", help="alpha profile")
+    p.add_argument(
+        "--contact", choices=("grid", "particle"), default="grid", help="collider on grid nodes or on particles"
+    )
+    p.add_argument(
+        "--threshold-grid", type=int, default=None, help="terminal threshold in squared cells of an N-cell grid"
+    )
     p.add_argument("--damping", type=float, default=0.0, help="grid velocity damping rate")
     p.add_argument("--resolution", type=int, default=None, help="tactile image size H = W (default 64, or --sensor's)")
     p.add_argument("--layers", type=int, default=None, help="pad thickness in particles (default 6, or --sensor's)")

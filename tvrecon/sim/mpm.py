@@ -26,6 +26,7 @@ from torch import Tensor
 from .colliders import Collider, collide_grid
 from .materials import fixed_corotated_kirchhoff, lame_parameters, p_wave_speed, polar_decomposition
 from .mpm_grid import FIX_HINT, Stencil, Transfer, block_layout, share_node_force, shift_nodes, stencil_offsets
+from .particle_contact import CONTACT_MODES, particle_contact_step
 
 __all__ = ["MPMConfig", "ParticleState", "MLSMPM", "cfl_dt"]
 
@@ -41,6 +42,8 @@ class MPMConfig:
     friction: Coulomb coefficient on collider nodes (0 = frictionless slip).
     damping: viscous damping of grid velocity, ``v_i *= exp(-damping dt)``.
     cfl: Courant number of the CFL rule.
+    contact: "grid" (default: colliders act on grid nodes, the contract) or "particle" (opt-in: they act on the
+        particles after G2P, contact starting when a particle reaches the surface; :mod:`.particle_contact`).
     """
 
     n_grid: int = 128
@@ -51,6 +54,7 @@ class MPMConfig:
     friction: float = 0.0
     damping: float = 0.0
     cfl: float = 0.3
+    contact: str = "grid"
 
 
 def cfl_dt(cfg: MPMConfig) -> float:
@@ -179,6 +183,8 @@ class MLSMPM:
             raise ValueError(f"friction must be >= 0, got {cfg.friction}")
         if cfg.damping < 0:
             raise ValueError(f"damping must be >= 0, got {cfg.damping}")
+        if cfg.contact not in CONTACT_MODES:
+            raise ValueError(f"contact must be one of {CONTACT_MODES}, got {cfg.contact!r}")
         self.cfg = cfg
         self.device = torch.device(device)
         self.dx = 1.0 / cfg.n_grid
@@ -285,7 +291,7 @@ class MLSMPM:
         if self._needs_grad(state, hand_velocity, alpha):
             return self._step(state, colliders, hand_velocity, alpha, B, block)
         with torch.no_grad():
-            if self._kernels is not None:  # opt-in fused per-particle kernels (compile=True)
+            if self._kernels is not None and self.cfg.contact == "grid":  # opt-in fused kernels (compile=True)
                 from .mpm_compiled import CompileFailed
                 from .mpm_fused import fused_step
 
@@ -307,6 +313,9 @@ class MLSMPM:
         """One step in the paper's order: P2G (eq. 5-6), grid velocity and colliders (eq. 7), G2P (eq. 8-11)."""
         st = self._stencil(state, B, block)
         grid = self._p2g(state, st)
+        if self.cfg.contact == "particle":  # opt-in: the colliders act on the particles (particle_contact.py)
+            gv = self._grid_update(grid, [None] * B, st)
+            return particle_contact_step(self, state, st, gv, colliders, hand_velocity, alpha, B, block)
         gv = self._grid_update(grid, colliders, st)
         return self._g2p(state, st, gv, hand_velocity, alpha)
 
@@ -451,6 +460,8 @@ class MLSMPM:
         """
         if self._last_transfer is None:
             raise RuntimeError("last_particle_force needs a step first")
+        if self.cfg.contact == "particle":  # the collider acted on the particles: their own forces
+            return self._particle_contact_force
         w = self._last_transfer.w
         return share_node_force(self._last_transfer, mass, self._constants(w.dtype, w.device)[2])
 

@@ -27,17 +27,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 import trimesh
 from torch import Tensor
 
-from tvrecon.config_utils import check_known_keys, field_names
+from tvrecon.config_utils import OMIT_IF_DEFAULT, check_known_keys, field_names
 from tvrecon.sim import placement
 from tvrecon.sim.materials import p_wave_speed
 from tvrecon.sim.mpm import MPMConfig, cfl_dt
+from tvrecon.sim.particle_contact import CONTACT_MODES
 from tvrecon.sim.press_run import PressLoop, TactileReading
 from tvrecon.sim.sensor import SensorConfig, _scalar
 from tvrecon.sim.stop_rules import (
@@ -86,6 +87,19 @@ class PressConfig:
             many steps in total; the reading then carries the ``residual`` image.
         record_every: record the tactile image and the pad particles every this many steps (0 = off).
         progress: show a tqdm progress bar over the steps.
+        contact: where the rigid object acts on the pad (``MPMConfig.contact``): ``"grid"`` (default, the grid nodes
+            with sdf < 0; contact starts up to 1.5 cells before the particles arrive) or ``"particle"`` (opt-in: the
+            contact-layer particles, from when they reach the surface, whatever the object's offset from the node
+            planes; :mod:`tvrecon.sim.particle_contact`). With ``"particle"`` the first step touches only when
+            ``gap`` is below one step's travel.
+        threshold_grid: the grid whose cells measure ``threshold``. None (default): this press's ``n_grid`` (paper eq.
+            12 in the simulation's own cells, so the physical depth at the stop shrinks as ``n_grid`` grows). An int
+            N: squared cells of an N-cell grid, a fixed physical length (``domain_size / N`` world units); the terminal
+            check compares the chamfer with ``threshold * (n_grid / N)^2`` (e.g. ``threshold_grid=128`` stops every
+            grid where the default stops at ``n_grid`` 128).
+
+    ``contact`` and ``threshold_grid`` were added after data was cached: at their defaults they stay out of the data
+    cache key (``config_utils.OMIT_IF_DEFAULT``), so existing keys are unchanged; other values enter it.
     """
 
     n_grid: int = 128
@@ -103,6 +117,8 @@ class PressConfig:
     release_steps: int = 0
     record_every: int = 0
     progress: bool = False
+    contact: str = field(default="grid", metadata=OMIT_IF_DEFAULT)
+    threshold_grid: int | None = field(default=None, metadata=OMIT_IF_DEFAULT)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -129,6 +145,11 @@ class PressConfig:
             raise ValueError("PressConfig.release_steps and record_every must be >= 0")
         if not float(self.friction) >= 0:
             raise ValueError(f"PressConfig.friction must be >= 0, got {self.friction}")
+        if self.contact not in CONTACT_MODES:
+            raise ValueError(f"PressConfig.contact must be one of {CONTACT_MODES}, got {self.contact!r}")
+        tg = self.threshold_grid
+        if tg is not None and not (isinstance(tg, int) and not isinstance(tg, bool) and tg > 0):
+            raise ValueError(f"PressConfig.threshold_grid must be a positive int or None, got {self.threshold_grid!r}")
 
 
 class EIPSimulator:
@@ -179,6 +200,7 @@ class EIPSimulator:
             rho=float(s.rho),
             friction=float(p.friction),
             damping=s.damping,
+            contact=p.contact,
         )
         if cfg.dt is None:
             probe = MPMConfig(n_grid=int(p.n_grid), E=_scalar(s.E), nu=_scalar(s.nu), rho=float(s.rho))

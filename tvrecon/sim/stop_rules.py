@@ -8,6 +8,9 @@ press (later rules are not evaluated: the terminal chamfer is the costly one)::
        ForceRule       ``force``: mean normal contact force over the last 3 steps     > only the first one configured
        ThresholdRule   ``threshold``: terminal chamfer (paper eq. 12), after contact  /  is in the list
 
+The terminal threshold is in squared cells of the press's own grid, or, with ``PressConfig.threshold_grid`` = N, in
+squared cells of an N-cell grid (a physical unit: :func:`threshold_cells` converts it).
+
 A ``depth`` rule needs travel: :func:`travel_for_depth` raises ``max_depth`` to ``depth + 0.5`` cells when it is
 shorter, so the travel limit does not stop the press before the requested depth (the placement's collider region
 and reach follow the raised value).
@@ -173,6 +176,17 @@ class ThresholdRule:
         return state.contact and chamfer_reaches(check.contact_cells, check.rest_cells, check.lattice, self.threshold)
 
 
+def threshold_cells(p: PressConfig) -> float:
+    """The terminal threshold of ``p`` in squared cells of its own grid: ``threshold`` itself, or with
+    ``threshold_grid`` = N (a threshold in squared cells of an N-cell grid, a physical unit) ``threshold * (n_grid /
+    N)^2``: a length of one N-grid cell spans ``n_grid / N`` cells here."""
+    if p.threshold is None:
+        raise ValueError("threshold_cells needs a threshold")
+    if p.threshold_grid is None:
+        return float(p.threshold)
+    return float(p.threshold) * (int(p.n_grid) / int(p.threshold_grid)) ** 2
+
+
 def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
     """The ordered stop rules of ``p``: the travel limit, then the first configured of depth, force, threshold.
 
@@ -184,7 +198,7 @@ def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
     elif p.force is not None:
         rules.append(ForceRule(float(p.force)))
     elif p.threshold is not None:
-        rules.append(ThresholdRule(float(p.threshold)))
+        rules.append(ThresholdRule(threshold_cells(p)))
     return rules
 
 

@@ -99,12 +99,16 @@ class SlabPress:
     depth: (S,) geometric depth in cells: hand travel minus the start gap between the rest contact layer (particle
         centres) and the sphere's apex. force: (B, S) normal force on the pad (simulation units). radius: (B, S)
         contact radius in cells from the pressure's second moment, ``a = sqrt(2.5 sum f r^2 / sum f)`` over the
-        collider's node forces (exact for a Hertz pressure ``p0 sqrt(1 - r^2 / a^2)``). offsets: the B apex offsets.
+        collider's node forces (exact for a Hertz pressure ``p0 sqrt(1 - r^2 / a^2)``; the particle forces with
+        ``contact="particle"``). area_radius: (B, S) ``sqrt(A / pi)`` of the area A in contact, in cells: node columns
+        with a collider force (1 cell^2 each), or contact-layer particles with one (spacing^2 each) with
+        ``contact="particle"``. offsets: the B apex offsets.
     """
 
     depth: np.ndarray
     force: np.ndarray
     radius: np.ndarray
+    area_radius: np.ndarray
     offsets: list[float]
     dx: float
     E: float
@@ -130,6 +134,7 @@ def slab_press(
     speed: float | None = None,
     spacing: float = 0.5,
     mount_mass: float = 100.0,
+    contact: str = "grid",
 ) -> SlabPress:
     """Press a slab bonded to a rigid hand onto a rigid sphere, one scene per apex offset, batched.
 
@@ -144,9 +149,11 @@ def slab_press(
         width, thick: slab size in cells. R: sphere radius in cells. max_depth: final geometric depth, cells.
         E, nu: material. dt: time step (None -> CFL). spacing: particle spacing in cells.
         mount_mass: mass multiplier of the hand-driven back layer (the default clamped pad's 100).
+        contact: ``MPMConfig.contact``: "grid" (node collider; radius from the node forces) or "particle"
+            (particle-level contact; radius from the particle forces at the particles' positions).
     """
     dx = 1.0 / n_grid
-    cfg = MPMConfig(n_grid=n_grid, E=E, nu=nu, dt=dt)
+    cfg = MPMConfig(n_grid=n_grid, E=E, nu=nu, dt=dt, contact=contact)
     solver = MLSMPM(cfg)
     if speed is None:
         speed = speed_fraction * p_wave_speed(E, nu, 1.0)
@@ -172,6 +179,7 @@ def slab_press(
     centre_cells = torch.tensor([0.5, 0.5]) / dx
     forces = np.zeros((B, n_steps))
     radii = np.zeros((B, n_steps))
+    area_radii = np.zeros((B, n_steps))
     travel = np.arange(1, n_steps + 1) * step_cells
     for s in range(n_steps):
         base = torch.floor(state.x / dx - 0.5)
@@ -179,6 +187,14 @@ def slab_press(
         D = [int(v) for v in (base.view(B, P, 3).amax(1) - lo + 3).amax(0).tolist()]
         state = solver.step(state, colliders, hand_velocity=hand, alpha=alpha)
         forces[:, s] = solver.last_force[:, 2].numpy()
+        if contact == "particle":  # second moment of the particle forces about the sphere's axis
+            fz = solver.last_particle_force(state.mass)[:, 2].view(B, P)
+            r2 = ((state.x[:, :2] / dx - centre_cells) ** 2).sum(1).view(B, P)  # (B, P) cells^2
+            tot, m2 = fz.sum(1), (fz * r2).sum(1)
+            radii[:, s] = torch.where(tot > 0, (2.5 * m2 / torch.where(tot > 0, tot, 1.0)).sqrt(), 0).numpy()
+            touching = (fz > 0).sum(1).to(torch.float64) * spacing**2  # (B,) contact area, cells^2
+            area_radii[:, s] = (touching / math.pi).sqrt().numpy()
+            continue
         nf = solver._last_transfer.node_force.view(B, D[0], D[1], D[2], 3)[..., 2]  # (B, X, Y, Z)
         ix = torch.arange(D[0])[None, :, None] + lo[:, 0, None, None]  # (B, X, 1) global node index
         iy = torch.arange(D[1])[None, None, :] + lo[:, 1, None, None]
@@ -187,12 +203,14 @@ def slab_press(
         tot = fz.sum((1, 2))
         m2 = (fz * r2).sum((1, 2))
         radii[:, s] = torch.where(tot > 0, (2.5 * m2 / torch.where(tot > 0, tot, 1.0)).clamp(min=0).sqrt(), 0).numpy()
+        area_radii[:, s] = ((fz > 0).sum((1, 2)).to(torch.float64) / math.pi).sqrt().numpy()  # node columns, 1 cell^2
     # depth per scene differs by its gap: record travel and shift per scene to a common depth axis
     depth = travel[None, :] - gaps[:, None]  # (B, S)
     return SlabPress(
         depth=depth,
         force=forces,
         radius=radii,
+        area_radius=area_radii,
         offsets=list(offsets),
         dx=dx,
         E=E,
@@ -267,14 +285,16 @@ def free_slab_impact(
     nu: float = 0.25,
     spacing: float = 0.5,
     dtype: torch.dtype = torch.float32,
+    contact: str = "grid",
 ) -> dict[str, float]:
-    """A free slab (alpha = 1, no hand) thrown down, slightly sideways, at a rigid sphere (friction 0.5).
+    """A free slab (alpha = 1, no hand) thrown down, slightly sideways, at a rigid sphere (friction 0.5), with
+    ``MPMConfig.contact`` = ``contact``.
 
     Without a hand the only external force is the collider's, so the change of total momentum ``sum m v`` must equal
     the collider impulse ``sum_steps last_force dt``. Returns the momentum change, the impulse (both (3,)), the
     initial momentum magnitude and the largest relative mismatch ``|dp - J| / |p0|``."""
     dx = 1.0 / n_grid
-    solver = MLSMPM(MPMConfig(n_grid=n_grid, E=E, nu=nu, friction=0.5))
+    solver = MLSMPM(MPMConfig(n_grid=n_grid, E=E, nu=nu, friction=0.5, contact=contact))
     c = p_wave_speed(E, nu, 1.0)
     lat = slab_lattice(width, thick, spacing).to(dtype)
     x0 = lat * dx + torch.tensor([0.5, 0.5, 0.5 + 2.0 * dx], dtype=dtype)
