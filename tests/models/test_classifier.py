@@ -1,9 +1,10 @@
-"""N-touch tactile classifier: shapes, padding/masking and overfitting a tiny batch."""
+"""N-touch tactile classifiers: shapes, padding/masking and overfitting a tiny batch."""
 
 import pytest
 import torch
 
 from tvrecon.models.classifier import TactileClassifier
+from tvrecon.models.touch_set import TouchSetClassifier
 
 
 def test_shapes_padding_and_masking() -> None:
@@ -25,9 +26,11 @@ def test_shapes_padding_and_masking() -> None:
 
 
 @pytest.mark.slow
-def test_overfits_tiny_batch() -> None:
+@pytest.mark.parametrize("model", [TactileClassifier, TouchSetClassifier])
+def test_overfits_tiny_batch(model: type) -> None:
+    """The paper's stacked classifier and the touch-set classifier (tvrecon.models.touch_set) both fit 8 samples."""
     torch.manual_seed(0)
-    clf = TactileClassifier(num_classes=4, num_touches=2)
+    clf = model(num_classes=4, num_touches=2)
     x = torch.rand(8, 2, 3, 16, 16)
     y = torch.tensor([0, 1, 2, 3, 0, 1, 2, 3])
     opt = torch.optim.Adam(clf.parameters(), lr=1e-3)
@@ -36,6 +39,6 @@ def test_overfits_tiny_batch() -> None:
         opt.zero_grad()
         loss.backward()
         opt.step()
-    with torch.no_grad():
+    with torch.no_grad():  # train-mode batch norm
         acc = (clf(x).argmax(1) == y).float().mean().item()
     assert acc == 1.0, f"train accuracy {acc}"
