@@ -59,6 +59,7 @@ PRETTY_NAMES: dict[str, str] = {
     "touch_geometry": "Touch geometry (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
+    "classify_paper_cpu": "Tactile classifier",
     "classify_touch_set": "Touch-set classifier (beyond the paper)",
 }
 # Row order of Tables 3 and 4 (paper order), unknown names after these in input order.

@@ -25,9 +25,13 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
     assert cfg.model.name == experiment
     datamodule = hydra.utils.instantiate(cfg.data)
     model = hydra.utils.instantiate(cfg.model)
-    if experiment == "classify":
+    if experiment.startswith("classify"):
         assert type(datamodule).__name__ == "ClassificationDataModule"
         assert model.num_touches == cfg.data.num_touches == model.net.num_touches
+        if experiment == "classify_touch_set":  # one set model for every N, tested at 1..10 touches
+            assert type(model.net).__name__ == "TouchSetClassifier" and model.eval_touches == [1, 2, 4, 6, 8, 10]
+        if experiment != "classify":  # the cls_paper_cpu runs: the paper's 1,500 test images, read once per process
+            assert datamodule.dataset_kwargs["eval_draws"] == 10 and datamodule.dataset_kwargs["memory_cache"]
         train, test = datamodule.make_dataset("train"), datamodule.make_dataset("test")
         assert train.redraw_touches and not test.redraw_touches  # fresh touches per training epoch only
         assert not train.rotate_touches  # the orientation augmentation is off until measured to help
@@ -191,4 +195,4 @@ def test_classify_experiment_trains_and_prints_table2(tmp_path: Path, capsys: py
     assert out["result"]["task"] == "classification" and set(out["result"]["accuracy"]) == {"2"}
     printed = capsys.readouterr().out
     assert "Table 2" in printed and "2-touch" in printed
-    assert (tmp_path / "tables" / "table2.csv").read_text().splitlines()[0].startswith("1-touch,2-touch")
+    assert (tmp_path / "tables" / "table2.csv").read_text().splitlines()[0].startswith("Model,1-touch,2-touch")
