@@ -17,6 +17,12 @@ def test_shapes_padding_and_masking() -> None:
     masked = clf(x, torch.tensor([[True, True, False, False]] * 2))
     assert torch.allclose(two, masked, atol=1e-5)
     assert not torch.allclose(two, clf(x), atol=1e-5)
+
+
+@pytest.mark.parametrize("model", [TactileClassifier, TouchSetClassifier])
+def test_bad_input_raises(model: type) -> None:
+    clf = model(num_classes=7, num_touches=4).eval()
+    x = torch.rand(2, 4, 3, 32, 32)
     with pytest.raises(ValueError, match="num_touches"):
         clf(torch.rand(1, 5, 3, 32, 32))
     with pytest.raises(ValueError, match=r"\(B, N, 3, h, w\)"):
