@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from tvrecon.seed_summary import mean_std
-from tvrecon.tables import CLS_TOUCHES, PRETTY_NAMES, Table, _check_results
+from tvrecon.tables import CLS_TOUCHES, PRETTY_NAMES, Table, _check_results, mean_std
 
 __all__ = ["build_per_class_table", "confusion_by_touches", "plot_confusion", "write_confusion_plots"]
 

@@ -9,22 +9,12 @@ touches (``visual+refine@k``).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from tvrecon.tables import PRETTY_NAMES, RECON_TOUCHES, Table, _check_results, _ordered
+from tvrecon.tables import PRETTY_NAMES, RECON_TOUCHES, Table, _check_results, _ordered, mean_std
 
 __all__ = ["build_seed_summary", "mean_std"]
-
-
-def mean_std(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and sample standard deviation (ddof=1; 0 for a single value) of a non-empty sequence."""
-    if not values:
-        raise ValueError("mean_std needs at least one value")
-    mean = sum(values) / len(values)
-    std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
-    return mean, std
 
 
 def _cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
