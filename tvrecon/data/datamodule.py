@@ -195,7 +195,9 @@ class ClassificationDataModule(_GeneratedDataModule):
     the dataset from :meth:`~tvrecon.models.lit_cls.ClassificationModule.on_train_epoch_start`, which needs workers
     re-created every epoch: ``persistent_workers=True`` with a redrawing train split raises ValueError.
     ``rotate_touches`` (shared, default False) turns on the orientation augmentation of the training draws;
-    ``eval_draws`` (shared, default 1) K > 1 tests and validates every object with K fixed draws of N touches.
+    ``eval_draws`` (shared, default 1) K > 1 tests and validates every object with K fixed draws of N touches;
+    ``patches`` (shared) adds patch_points (B,N,Q,3), patch_normals (B,N,Q,3) and patch_mask (B,N,Q) to the batch and
+    ``rotate_pose`` turns each training sample's touch set about +z (see the dataset).
     """
 
     dataset_cls = TactileClassificationDataset

@@ -30,10 +30,11 @@ from torch.utils.data import Dataset
 
 from tvrecon.config_utils import coerce_config
 from tvrecon.data.generated import GeneratedDataset
+from tvrecon.data.pose_augment import turn_about_up
 from tvrecon.data.render import render_view, sample_camera
 from tvrecon.data.tactile_augment import orient_touches
 from tvrecon.data.touch_select import TouchSelector
-from tvrecon.sim.contact import contact_patch
+from tvrecon.sim.contact import ContactPatch, contact_patch
 
 __all__ = [
     "RenderConfig",
@@ -199,16 +200,24 @@ class ReconstructionDataset(GeneratedDataset):
         normals = torch.zeros((M, Hs * Ws, 3), dtype=torch.float32)
         mask = torch.zeros((M, Hs * Ws), dtype=torch.bool)
         if T > 0:
-            patch = contact_patch(
-                torch.from_numpy(np.ascontiguousarray(raw["tactile"][:T])).float(),
-                torch.from_numpy(raw["positions"][:T]),
-                torch.from_numpy(raw["directions"][:T]),
-                self.sensor,
-                int(self.press.n_grid),
-                float(self.press.domain_size),
-            )
+            patch = _contact_patches(self, raw, np.arange(T))
             points[:T], normals[:T], mask[:T] = patch.points, patch.normals, patch.mask
         return points, normals, mask
+
+
+def _contact_patches(dataset: GeneratedDataset, raw: Mapping[str, np.ndarray], sel: np.ndarray) -> ContactPatch:
+    """Contact patches (:func:`tvrecon.sim.contact.contact_patch`) of the cached touches ``sel`` (T,) of an item.
+
+    Returns points (T, Hs*Ws, 3) float32, normals (T, Hs*Ws, 3) float32 world, mask (T, Hs*Ws) bool.
+    """
+    return contact_patch(
+        torch.from_numpy(np.ascontiguousarray(raw["tactile"][sel])).float(),
+        torch.from_numpy(np.ascontiguousarray(raw["positions"][sel])),
+        torch.from_numpy(np.ascontiguousarray(raw["directions"][sel])),
+        dataset.sensor,
+        int(dataset.press.n_grid),
+        float(dataset.press.domain_size),
+    )
 
 
 class TactileClassificationDataset(GeneratedDataset):
@@ -228,8 +237,15 @@ class TactileClassificationDataset(GeneratedDataset):
     (:func:`tvrecon.data.tactile_augment.rotate_tactile`; the pad's in-plane orientation is arbitrary). Positions and
     directions are left as they are. Needs square tactile images.
 
+    ``patches=True`` adds each touch's contact patch, the pad's contact layer mapped back to world points and
+    normals (:func:`tvrecon.sim.contact.contact_patch`, from the raw image at the pad's resolution, so the image
+    augmentation does not move it). ``rotate_pose=True`` (training draws only) turns the whole touch set, positions,
+    directions and patches, by one random angle about the world's up axis per visit
+    (:mod:`tvrecon.data.pose_augment`): the object's heading is then unknown to a model that reads touch poses.
+
     Sample (``docs/batch-schema.md``): tactile (N,3,h,w) float32 (scaled grid cells), touch_mask (N,) bool (all
-    True), positions (N,3), directions (N,3) float32 world, label int64.
+    True), positions (N,3), directions (N,3) float32 world, label int64; with ``patches``: patch_points (N,Q,3),
+    patch_normals (N,Q,3) float32 world and patch_mask (N,Q) bool, Q = the pad's Hs*Ws.
 
     Args (in addition to :class:`GeneratedDataset`):
         num_objects: number of objects (items).
@@ -237,6 +253,8 @@ class TactileClassificationDataset(GeneratedDataset):
         num_touches: N touches per sample (1 <= N <= M).
         redraw_touches: draw the N touches afresh per epoch (training) instead of a fixed subset.
         rotate_touches: random quarter turns and mirroring of each drawn touch (only with ``redraw_touches``).
+        patches: add the touches' contact patches to every sample.
+        rotate_pose: random turn of the touch set about +z per training visit (only with ``redraw_touches``).
         eval_draws: K fixed draws of N touches per object at evaluation (``redraw_touches=False``), served through
             :class:`EvalDraws` (``len`` = objects x K); 1 (default) = one sorted seeded subset per object.
     """
@@ -251,6 +269,8 @@ class TactileClassificationDataset(GeneratedDataset):
         redraw_touches: bool = False,
         rotate_touches: bool = False,
         eval_draws: int = 1,
+        patches: bool = False,
+        rotate_pose: bool = False,
         **kwargs: Any,
     ) -> None:
         if not 1 <= int(num_touches) <= int(touches_per_object):
@@ -268,6 +288,9 @@ class TactileClassificationDataset(GeneratedDataset):
         self.rotate_touches = bool(rotate_touches)
         if self.rotate_touches and self.tactile_size[0] != self.tactile_size[1]:
             raise ValueError(f"rotate_touches needs square tactile images, got tactile_size={self.tactile_size}")
+        self.patches = bool(patches)
+        self._memory_patches: dict[int, tuple[Tensor, Tensor, Tensor]] = {}
+        self.rotate_pose = bool(rotate_pose)
         self.epoch = 0
 
     @property
@@ -285,6 +308,18 @@ class TactileClassificationDataset(GeneratedDataset):
         index = self._check_index(index)
         out = self._simulate(self.mesh(index), self.seeds(index)[0])
         out["label"] = np.asarray(self.label_of(index), dtype=np.int64)
+        return out
+
+    def _item_patches(self, index: int, raw: Mapping[str, np.ndarray]) -> tuple[Tensor, Tensor, Tensor]:
+        """Contact patches of all M cached touches of item ``index`` (points, normals (M, Q, 3), mask (M, Q)); kept
+        per item with ``memory_cache`` (they are a function of the cached touches only)."""
+        memo = self._memory_patches if self._memory is not None else None
+        if memo is not None and index in memo:
+            return memo[index]
+        patch = _contact_patches(self, raw, np.arange(len(raw["positions"])))
+        out = (patch.points, patch.normals, patch.mask)
+        if memo is not None:
+            memo[index] = out
         return out
 
     def touch_indices(self, index: int, epoch: int | None = None, draw: int = 0) -> np.ndarray:
@@ -305,13 +340,22 @@ class TactileClassificationDataset(GeneratedDataset):
         if self.rotate_touches and self.redraw_touches:
             k, mirror = self.selector.orientations(self.seeds(index)[3], self.epoch)
             tactile = orient_touches(tactile, k, mirror)
-        return {
+        out = {
             "tactile": tactile,
             "touch_mask": torch.ones(self.num_touches, dtype=torch.bool),
             "positions": torch.from_numpy(raw["positions"][sel]),
             "directions": torch.from_numpy(raw["directions"][sel]),
             "label": torch.tensor(int(raw["label"]), dtype=torch.int64),
         }
+        if self.patches:
+            patch = self._item_patches(index, raw)
+            out["patch_points"], out["patch_normals"], out["patch_mask"] = (x[sel] for x in patch)
+        if self.rotate_pose and self.redraw_touches:
+            angle = self.selector.yaw(self.seeds(index)[3], self.epoch)
+            for key in ("positions", "directions", "patch_points", "patch_normals"):
+                if key in out:
+                    out[key] = turn_about_up(out[key], angle)
+        return out
 
 
 class EvalDraws(Dataset):

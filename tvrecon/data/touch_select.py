@@ -37,7 +37,8 @@ import numpy as np
 
 __all__ = ["TouchSelector", "set_loader_epoch"]
 
-_INDICES, _ORIENTATIONS, _EVAL = 1, 2, 3  # SeedSequence stream tags of the training draws and evaluation windows
+# SeedSequence stream tags of the training draws, orientations, evaluation windows and training yaws
+_INDICES, _ORIENTATIONS, _EVAL, _YAW = 1, 2, 3, 4
 
 
 @dataclass(frozen=True)
@@ -118,6 +119,19 @@ class TouchSelector:
         rng = np.random.default_rng(np.random.SeedSequence([int(item_seed), _ORIENTATIONS, int(epoch)]))
         code = rng.integers(0, 8, size=N)
         return (code % 4).astype(np.int64), code >= 4
+
+    def yaw(self, item_seed: int, epoch: int = 0) -> float:
+        """Random turn (radians, in [0, 2 pi)) of a training sample's whole touch set about the world's up axis (+z).
+
+        For the pose augmentation (``rotate_pose``): one angle per sample, so the touches keep their relative
+        geometry while the object's heading is unknown to the model. A function of ``(item_seed, epoch)`` from its
+        own stream (turning it on changes no other draw); evaluation (``redraw=False``) returns 0.
+        """
+        self._check(item_seed, epoch)
+        if not self.redraw:
+            return 0.0
+        rng = np.random.default_rng(np.random.SeedSequence([int(item_seed), _YAW, int(epoch)]))
+        return float(rng.uniform(0.0, 2.0 * np.pi))
 
 
 def _datasets(loaders: Any) -> Iterable[Any]:

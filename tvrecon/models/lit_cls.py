@@ -22,29 +22,31 @@ from torch import Tensor, nn
 from tvrecon.data.touch_select import set_loader_epoch
 from tvrecon.models.optim import configure_optimizers
 
-__all__ = ["ClassificationModule", "select_touches"]
+__all__ = ["ClassificationModule", "gather_touches", "other_object_index", "select_touches", "touch_index"]
 
 
-def select_touches(
-    tactile: Tensor, touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False
+def _check_tactile(tactile: Tensor) -> None:
+    if tactile.dim() != 5 or tactile.shape[2] != 3:
+        raise ValueError(f"tactile must have shape (B, T, 3, h, w), got {tuple(tactile.shape)}")
+
+
+def touch_index(
+    touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False
 ) -> Tensor:
-    """Pick ``n`` valid touches per sample.
+    """Indices of ``n`` valid touches per sample.
 
     Args:
-        tactile: (B, T, 3, h, w) float tactile images, padded.
         touch_mask: (B, T) bool, True for real touches.
         n: touches to keep per sample, 1 <= n <= T.
         generator: RNG for ``random=True``.
         random: draw the touches uniformly among the valid ones (training) instead of taking the first n.
 
     Returns:
-        (B, n, 3, h, w) float.
+        (B, n) int64 indices into T.
     """
-    if tactile.dim() != 5 or tactile.shape[2] != 3:
-        raise ValueError(f"tactile must have shape (B, T, 3, h, w), got {tuple(tactile.shape)}")
-    B, T = tactile.shape[:2]
-    if touch_mask.shape != (B, T):
-        raise ValueError(f"touch_mask must have shape (B, T) = {(B, T)}, got {tuple(touch_mask.shape)}")
+    if touch_mask.dim() != 2:
+        raise ValueError(f"touch_mask must have shape (B, T), got {tuple(touch_mask.shape)}")
+    B, T = touch_mask.shape
     if not 1 <= n <= T:
         raise ValueError(f"n must be in [1, T={T}], got {n}")
     valid = touch_mask.sum(1)
@@ -54,19 +56,66 @@ def select_touches(
             f"per object (data touches_per_object) or lower model.num_touches"
         )
     if random:
-        score = torch.rand(B, T, generator=generator, device="cpu").to(tactile.device)
+        score = torch.rand(B, T, generator=generator, device="cpu").to(touch_mask.device)
     else:
-        score = torch.arange(T, dtype=torch.float32, device=tactile.device).expand(B, T)
+        score = torch.arange(T, dtype=torch.float32, device=touch_mask.device).expand(B, T)
     score = score.masked_fill(~touch_mask, float("inf"))
-    idx = score.argsort(dim=1)[:, :n]  # (B, n)
-    return tactile[torch.arange(B, device=tactile.device)[:, None], idx]
+    return score.argsort(dim=1)[:, :n]
+
+
+def gather_touches(x: Tensor, idx: Tensor) -> Tensor:
+    """Args: x (B, T, ...) per-touch tensor; idx (B, n) int64. Returns (B, n, ...): x[b, idx[b]]."""
+    return x[torch.arange(x.shape[0], device=x.device)[:, None], idx.to(x.device)]
+
+
+def select_touches(
+    tactile: Tensor, touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False
+) -> Tensor:
+    """Pick ``n`` valid touches per sample (:func:`touch_index`).
+
+    Args:
+        tactile: (B, T, 3, h, w) float tactile images, padded.
+        touch_mask: (B, T) bool, True for real touches.
+        n, generator, random: see :func:`touch_index`.
+
+    Returns:
+        (B, n, 3, h, w) float.
+    """
+    _check_tactile(tactile)
+    B, T = tactile.shape[:2]
+    if touch_mask.shape != (B, T):
+        raise ValueError(f"touch_mask must have shape (B, T) = {(B, T)}, got {tuple(touch_mask.shape)}")
+    return gather_touches(tactile, touch_index(touch_mask, n, generator, random))
+
+
+def other_object_index(labels: Tensor) -> tuple[Tensor, Tensor]:
+    """For every sample, the next sample of the batch (cyclically) whose label differs: another object's touches.
+
+    Args:
+        labels: (B,) int64 class labels.
+
+    Returns:
+        idx (B,) int64 partner indices and valid (B,) bool (False where every other sample has the same label; the
+        partner is then the sample itself and must not be counted).
+    """
+    B = labels.shape[0]
+    own = torch.arange(B, device=labels.device)
+    if B < 2:
+        return own, torch.zeros(B, dtype=torch.bool, device=labels.device)
+    cand = (own[:, None] + torch.arange(1, B, device=labels.device)[None]) % B  # (B, B-1)
+    differs = labels[cand] != labels[:, None]  # (B, B-1)
+    valid = differs.any(1)
+    first = differs.to(torch.int8).argmax(1)  # the first differing candidate (0 where none)
+    return torch.where(valid, cand[own, first], own), valid
 
 
 class ClassificationModule(L.LightningModule):
     """Cross-entropy training of a tactile classifier over N touches.
 
     Args:
-        net: built classifier, ``forward(tactile (B, N, 3, h, w)) -> logits (B, num_classes)``.
+        net: built classifier, ``forward(*inputs) -> logits (B, num_classes)`` where ``inputs`` are the batch's
+            per-touch tensors named by ``net.touch_inputs`` (default ``("tactile",)``: tactile (B, N, 3, h, w)), each
+            (B, N, ...) with the same N touches.
         optimizer: partial optimizer (``_partial_: true``), called with the parameters.
         scheduler: partial LR scheduler called with the optimizer, or None.
         num_touches: N touches per training sample (the paper trains one model per N; Table 2 sweeps
@@ -79,10 +128,14 @@ class ClassificationModule(L.LightningModule):
         seed: run seed, recorded in the result dict (Table 2 averages over seeds).
         class_names: label -> class name for the per-class results; None reads ``datamodule.library.classes`` at
             test time (labels beyond the names are called ``class<i>``).
+        controls: test-time touch controls: ``"other"`` also classifies every test sample from another object's
+            touches (the next sample of the batch with another label, :func:`other_object_index`) and scores the
+            prediction against the sample's own label: a model that reads its touches falls towards chance.
 
     Test results (``test_results``, written to ``metrics.json``): ``accuracy`` {k: fraction}, and per touch count k
     the ``confusion`` matrix (C, C) int (rows: true class, columns: predicted), ``per_class`` accuracy {name:
-    fraction} of the classes present in the test split, and ``classes`` (the C names).
+    fraction} of the classes present in the test split, and ``classes`` (the C names); with the ``"other"`` control
+    ``accuracy_other`` {k: fraction over the samples that had a partner}.
     """
 
     def __init__(
@@ -96,6 +149,7 @@ class ClassificationModule(L.LightningModule):
         name: str = "classify",
         seed: int | None = None,
         class_names: Sequence[str] | None = None,
+        controls: Sequence[str] = (),
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -116,34 +170,51 @@ class ClassificationModule(L.LightningModule):
         else:
             self.eval_touches = sorted({int(k) for k in eval_touches if 1 <= int(k) <= self.num_touches})
         self.class_names = None if class_names is None else [str(c) for c in class_names]
+        self.controls = [str(c) for c in controls]
+        unknown = sorted(set(self.controls) - {"other"})
+        if unknown:
+            raise ValueError(f"unknown classification controls {unknown}; available: ['other']")
+        self.touch_inputs = tuple(getattr(net, "touch_inputs", ("tactile",)))
         self._confusion: dict[int, Tensor] = {}
+        self._other: dict[int, Tensor] = {}
         self.test_results: dict[str, Any] | None = None
 
-    def forward(self, tactile: Tensor) -> Tensor:
-        """Args: tactile (B, N, 3, h, w) float. Returns logits (B, num_classes) float."""
-        return self.net(tactile)
+    def forward(self, *inputs: Tensor) -> Tensor:
+        """Args: the per-touch inputs named by ``touch_inputs``, each (B, N, ...). Returns logits (B, C) float."""
+        return self.net(*inputs)
+
+    def _inputs(self, batch: dict[str, Tensor], n: int) -> list[Tensor]:
+        """The first ``n`` valid touches of every input the network reads, each (B, n, ...)."""
+        missing = [key for key in self.touch_inputs if key not in batch]
+        if missing:
+            raise KeyError(
+                f"the classifier reads {list(self.touch_inputs)} per touch but the batch has no {missing}"
+                + (": set data.patches=true" if any(key.startswith("patch_") for key in missing) else "")
+            )
+        _check_tactile(batch["tactile"])
+        idx = touch_index(batch["touch_mask"], n)
+        return [gather_touches(batch[key], idx) for key in self.touch_inputs]
 
     def on_train_epoch_start(self) -> None:
         """Give the training datasets the epoch of their touch draw (before Lightning builds the epoch's iterator)."""
         set_loader_epoch(self.trainer.train_dataloader, self.current_epoch)
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
-        x = select_touches(batch["tactile"], batch["touch_mask"], self.num_touches)
+        inputs = self._inputs(batch, self.num_touches)
         if self.touch_sampling == "random":
             n = int(torch.randint(1, self.num_touches + 1, ()))
-            x = x[:, :n]
-        logits = self(x)
+            inputs = [x[:, :n] for x in inputs]
+        logits = self(*inputs)
         loss = F.cross_entropy(logits, batch["label"])
         acc = (logits.argmax(1) == batch["label"]).float().mean()
-        B = x.shape[0]
+        B = logits.shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=B)
         self.log("train/acc", acc, prog_bar=True, batch_size=B)
         return loss
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        x = select_touches(batch["tactile"], batch["touch_mask"], self.num_touches)
-        logits = self(x)
-        B = x.shape[0]
+        logits = self(*self._inputs(batch, self.num_touches))
+        B = logits.shape[0]
         self.log("val/loss", F.cross_entropy(logits, batch["label"]), prog_bar=True, batch_size=B, sync_dist=True)
         acc = (logits.argmax(1) == batch["label"]).float().mean()
         self.log("val/acc", acc, prog_bar=True, batch_size=B, sync_dist=True)
@@ -157,17 +228,24 @@ class ClassificationModule(L.LightningModule):
 
     def on_test_epoch_start(self) -> None:
         self._confusion = {}
+        self._other = {}
 
     def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         available = int(batch["touch_mask"].sum(1).min())
         for k in self.eval_touches:
             if k > available:
                 continue
-            logits = self(select_touches(batch["tactile"], batch["touch_mask"], k))  # (B, C)
+            inputs = self._inputs(batch, k)
+            logits = self(*inputs)  # (B, C)
             C = logits.shape[1]
             pair = batch["label"] * C + logits.argmax(1)  # (B,) true * C + predicted
             counts = torch.bincount(pair, minlength=C * C).view(C, C)
             self._confusion[k] = counts if k not in self._confusion else self._confusion[k] + counts
+            if "other" in self.controls:
+                partner, valid = other_object_index(batch["label"])
+                hits = (self(*[x[partner] for x in inputs]).argmax(1) == batch["label"]) & valid
+                tally = torch.stack([hits.sum(), valid.sum()])  # (2,) correct, counted
+                self._other[k] = tally if k not in self._other else self._other[k] + tally
 
     def on_test_epoch_end(self) -> None:
         names: list[str] = []
@@ -187,6 +265,12 @@ class ClassificationModule(L.LightningModule):
             per_class[str(k)] = {
                 names[c]: float(matrix[c, c]) / float(rows[c]) for c in range(len(names)) if int(rows[c]) > 0
             }
+        accuracy_other: dict[str, float] = {}
+        for k, tally in sorted(self._other.items()):
+            hits, total = (int(v) for v in self.trainer.strategy.reduce(tally, reduce_op="sum").cpu())
+            if total > 0:
+                accuracy_other[str(k)] = hits / total
+                self.log(f"test/acc_other@{k}", accuracy_other[str(k)], sync_dist=False)
         self.test_results = {
             "task": "classification",
             "name": self.hparams.name,
@@ -197,6 +281,8 @@ class ClassificationModule(L.LightningModule):
             "confusion": confusion,
             "classes": names,
         }
+        if accuracy_other:
+            self.test_results["accuracy_other"] = accuracy_other
 
     def configure_optimizers(self) -> Any:
         return configure_optimizers(self.trainer.model.parameters(), self.optimizer_factory, self.scheduler_factory)
