@@ -80,6 +80,31 @@ def test_table2_mean_std_over_seeds() -> None:
     )
 
 
+def test_table2_control_row_follows_its_model() -> None:
+    """Runs with the 'other' control get a second row right below their model's; models without it get none."""
+    cloud = [
+        {
+            "task": "classification",
+            "name": "classify_contact_cloud",
+            "seed": s,
+            "accuracy": {"10": a},
+            "accuracy_other": {"10": o},
+        }
+        for s, a, o in [(0, 0.80, 0.02), (1, 0.90, 0.04)]
+    ]
+    paper = {"task": "classification", "name": "classify", "seed": 0, "accuracy": {"10": 0.3}}
+    table = build_table2([paper, *cloud])
+    rows = _csv_rows(table.to_csv())
+    assert [r[0] for r in rows[1:]] == [
+        "Tactile classifier",
+        "Contact-cloud classifier (beyond the paper)",
+        "Contact-cloud classifier (beyond the paper), another object's touches",
+    ]
+    # mean 85.0, std 7.07; mean 3.0, std 1.41
+    assert rows[2][-1] == "85.0 +- 7.1" and rows[3][-1] == "3.0 +- 1.4" and rows[3][1] == "-"
+    assert any("another label" in note for note in table.notes)
+
+
 def test_build_tables_selects_by_task_and_writes_files(tmp_path) -> None:
     cls = {"task": "classification", "name": "classify", "seed": 0, "accuracy": {"2": 0.5}}
     tables = build_tables([FULL, cls])
