@@ -236,3 +236,34 @@ def test_persistent_workers_with_a_per_epoch_draw_raise(cache: Path) -> None:
         **{**kwargs, "train": {"num_objects": 2, "classes": CLASSES, "redraw_touches": False}},
     )
     assert not fixed.train_dataloader().dataset.redraw_touches
+
+
+def test_pose_turn_is_one_seeded_yaw_per_training_draw(cache: Path) -> None:
+    """rotate_pose turns positions, directions and contact patches of a training draw by one angle about +z (the
+    touches' relative geometry and heights kept); the patches are those of the cached touches; evaluation is not
+    turned."""
+    from tvrecon.data.pose_augment import turn_about_up
+
+    plain = dataset(cache, redraw_touches=True, patches=True)
+    turned = dataset(cache, redraw_touches=True, patches=True, rotate_pose=True)
+    for epoch in range(2):
+        plain.set_epoch(epoch)
+        turned.set_epoch(epoch)
+        a, b = plain[0], turned[0]
+        angle = turned.selector.yaw(turned.seeds(0)[3], epoch)
+        assert 0.0 <= angle < 2 * np.pi
+        for key in ("positions", "directions", "patch_points", "patch_normals"):
+            torch.testing.assert_close(b[key], turn_about_up(a[key], angle))
+        assert torch.equal(a["patch_mask"], b["patch_mask"]) and torch.equal(a["tactile"], b["tactile"])
+        assert a["patch_mask"].any(1).all()  # every touch has contact points
+        d = a["positions"][:, None] - a["positions"][None]
+        torch.testing.assert_close((b["positions"][:, None] - b["positions"][None]).norm(dim=-1), d.norm(dim=-1))
+    assert plain.selector.yaw(7, 0) != plain.selector.yaw(7, 1)  # a new heading every epoch
+    evaluation = dataset(cache, patches=True, rotate_pose=True)
+    torch.testing.assert_close(evaluation[0]["patch_points"], dataset(cache, patches=True)[0]["patch_points"])
+    assert evaluation.selector.yaw(7, 3) == 0.0
+    # the patches are the cached touches' contact patches (the image augmentation does not move them)
+    spun = dataset(cache, redraw_touches=True, patches=True, rotate_touches=True)
+    plain.set_epoch(0)
+    assert not torch.equal(spun[0]["tactile"], plain[0]["tactile"])
+    torch.testing.assert_close(spun[0]["patch_points"], plain[0]["patch_points"])

@@ -15,7 +15,7 @@ from tvrecon.models.backbone import ResNet18Backbone
 from tvrecon.models.classifier import TactileClassifier
 from tvrecon.models.fusion import TactileVisualFusion
 from tvrecon.models.gcn import MeshDeformer
-from tvrecon.models.lit_cls import ClassificationModule, select_touches
+from tvrecon.models.lit_cls import ClassificationModule, other_object_index, select_touches
 from tvrecon.models.lit_recon import ReconstructionModule, gt_to_camera, keep_first_touches
 from tvrecon.models.reconstructor import TactileVisualReconstructor
 
@@ -150,7 +150,14 @@ def test_classification_fit_test_and_learns(tmp_path: Path) -> None:
     torch.manual_seed(0)
     net = TactileClassifier(num_classes=3, num_touches=2)
     model = ClassificationModule(
-        net, _optimizer, num_touches=2, touch_sampling="random", eval_touches=[1, 2, 4], name="classify", seed=0
+        net,
+        _optimizer,
+        num_touches=2,
+        touch_sampling="random",
+        eval_touches=[1, 2, 4],
+        name="classify",
+        seed=0,
+        controls=["other"],
     )
     assert model.eval_touches == [1, 2]  # 4 > the trained N is dropped
     dm = SyntheticClassificationDataModule(batch_size=6, n=6, num_touches=2, tactile_size=8)
@@ -168,8 +175,51 @@ def test_classification_fit_test_and_learns(tmp_path: Path) -> None:
         expected = {res["classes"][c]: int(matrix[c, c]) / int(rows[c]) for c in range(3) if rows[c] > 0}
         assert res["per_class"][k] == pytest.approx(expected)
     assert len(res["classes"]) == 3
+    # another object's touches (another label, the class is in the images) score at most what the model gets wrong
+    assert set(res["accuracy_other"]) == {"1", "2"}
+    assert res["accuracy_other"]["2"] <= 1.0 - res["accuracy"]["2"] + 1e-9 and res["accuracy_other"]["2"] < 0.34
+    with pytest.raises(ValueError, match="unknown classification controls"):
+        ClassificationModule(net, _optimizer, num_touches=2, controls=["blank"])
     with pytest.raises(ValueError, match="num_touches must be in"):
         ClassificationModule(TactileClassifier(num_classes=3, num_touches=2), _optimizer, num_touches=3)
+
+
+def test_other_object_index_pairs_samples_with_another_label() -> None:
+    idx, valid = other_object_index(torch.tensor([0, 0, 1, 1, 1, 2]))
+    assert idx.tolist() == [2, 2, 5, 5, 5, 0] and valid.all()
+    idx, valid = other_object_index(torch.tensor([4, 4, 4]))
+    assert idx.tolist() == [0, 1, 2] and not valid.any()  # nobody else: never counted
+    idx, valid = other_object_index(torch.tensor([3]))
+    assert idx.tolist() == [0] and not valid.any()
+
+
+class _PositionNet(torch.nn.Module):
+    """Reads two per-touch inputs: the class is the x coordinate of the first touch's position."""
+
+    touch_inputs = ("tactile", "positions")
+    num_touches = 4
+
+    def forward(self, tactile: torch.Tensor, positions: torch.Tensor) -> torch.Tensor:
+        assert tactile.shape[:2] == positions.shape[:2]
+        return torch.nn.functional.one_hot(positions[:, 0, 0].long(), 3).float()
+
+
+def test_every_input_the_net_reads_gets_the_same_touches() -> None:
+    model = ClassificationModule(_PositionNet(), _optimizer, num_touches=2)
+    mask = torch.tensor([[False, True, True, True], [True, False, True, False]])
+    positions = torch.arange(4.0)[None, :, None].expand(2, 4, 3).clone()  # touch t at x = t
+    tactile = torch.arange(4.0)[None, :, None, None, None].expand(2, 4, 3, 2, 2).clone()
+    batch = {"tactile": tactile, "positions": positions, "touch_mask": mask, "label": torch.tensor([1, 0])}
+    t, p = model._inputs(batch, 2)
+    assert p[:, :, 0].tolist() == [[1.0, 2.0], [0.0, 2.0]]  # the first valid touches
+    assert torch.equal(t[:, :, 0, 0, 0], p[:, :, 0])  # the same touches in both inputs
+    assert model(t, p).argmax(1).tolist() == [1, 0]
+    with pytest.raises(KeyError, match="data.patches=true"):
+        ClassificationModule(_PatchNet(), _optimizer, num_touches=2)._inputs(batch, 2)
+
+
+class _PatchNet(_PositionNet):
+    touch_inputs = ("tactile", "patch_points")
 
 
 def test_touch_controls_replace_the_touch_content(tmp_path: Path) -> None:
