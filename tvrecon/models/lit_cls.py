@@ -30,9 +30,7 @@ def _check_tactile(tactile: Tensor) -> None:
         raise ValueError(f"tactile must have shape (B, T, 3, h, w), got {tuple(tactile.shape)}")
 
 
-def touch_index(
-    touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False
-) -> Tensor:
+def touch_index(touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False) -> Tensor:
     """Indices of ``n`` valid touches per sample.
 
     Args:
