@@ -9,6 +9,8 @@ over the runs (seeds) of each k:
   the per-class accuracy);
 - :func:`write_confusion_plots`: the fewest and the most touches evaluated, ``confusion_<k>touch.png``.
 
+:func:`build_table2` is Table 2 itself: accuracy by touch count, one row per model (and one per control it ran).
+
 Runs of different models (experiment names) are kept apart: with more than one model the table's columns and the
 file names carry the model's name.
 """
@@ -21,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from tvrecon.tables import CLS_TOUCHES, PRETTY_NAMES, Table, _check_results, mean_std
+from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, mean_std
 
-__all__ = ["build_per_class_table", "confusion_by_touches", "plot_confusion", "write_confusion_plots"]
+__all__ = ["build_per_class_table", "build_table2", "confusion_by_touches", "plot_confusion", "write_confusion_plots"]
 
 
 def _cls(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     """The classification results that carry confusion matrices (older ``metrics.json`` files do not)."""
-    return [r for r in _check_results(results) if r["task"] == "classification" and r.get("confusion")]
+    return [r for r in check_results(results) if r["task"] == "classification" and r.get("confusion")]
 
 
 def _by_model(results: Iterable[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
@@ -110,7 +112,7 @@ def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, t
         path: output ``.png``.
         title: figure title.
     """
-    from tvrecon.viz import _atomic_savefig, plt
+    from tvrecon.viz import plt, save_and_close
 
     counts = np.asarray(counts, dtype=np.float64)
     if counts.ndim != 2 or counts.shape[0] != counts.shape[1] or counts.shape[0] != len(names):
@@ -127,7 +129,7 @@ def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, t
     accuracy = float(np.trace(counts) / max(counts.sum(), 1.0))
     ax.set_title(f"{title}\naccuracy {100 * accuracy:.1f}% over {int(counts.sum())} test draws", fontsize=9)
     fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, label="share of the true class")
-    return _atomic_savefig(fig, path, dpi=110)
+    return save_and_close(fig, path, dpi=110)
 
 
 def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
@@ -143,3 +145,44 @@ def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | P
             title = f"{PRETTY_NAMES.get(name, name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
             paths.append(plot_confusion(counts, names, Path(out_dir) / f"{stem}{k}touch.png", title))
     return paths
+
+
+def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
+    """Table 2: classification accuracy (%) by number of touches, one row per model (experiment name), mean +- std
+    over its runs (seeds).
+
+    Each classification result contributes its accuracy for every touch count it was evaluated with; the std
+    is the sample standard deviation (ddof=1) over runs, 0 for a single run; ``n`` runs are reported.
+    """
+    cls = [r for r in check_results(results) if r["task"] == "classification"]
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in cls:
+        groups.setdefault(str(r["name"]), []).append(r)
+    rows: list[list[str]] = []
+    notes = []
+    for name, runs in groups.items():
+        for key, suffix in (("accuracy", ""), ("accuracy_other", ", another object's touches")):
+            if key != "accuracy" and not any(isinstance(r.get(key), Mapping) for r in runs):
+                continue
+            cells = [PRETTY_NAMES.get(name, name) + suffix]
+            counts = []
+            for k in touches:
+                values = [100.0 * float(r[key][str(k)]) for r in runs if str(k) in (r.get(key) or {})]
+                counts.append(len(values))
+                if not values:
+                    cells.append("-")
+                    continue
+                mean, std = mean_std(values)
+                cells.append(f"{mean:.1f} +- {std:.1f}")
+            rows.append(cells)
+            notes.append(f"{cells[0]}: runs per column " + ", ".join(f"{k}: {n}" for k, n in zip(touches, counts)))
+    notes.insert(0, "Accuracy (%) over the test split, mean +- sample std over the runs (seeds).")
+    if any(row[0].endswith("another object's touches") for row in rows):
+        notes.insert(
+            1,
+            "Another object's touches: each test sample classified from the touches of the next sample in its batch "
+            "with another label, scored against its own label (model.controls=[other]); chance is 1 / classes.",
+        )
+    return Table(
+        "Table 2: tactile classification accuracy (%)", ["Model"] + [f"{k}-touch" for k in touches], rows, notes
+    )

@@ -12,7 +12,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from tvrecon.tables import PRETTY_NAMES, RECON_TOUCHES, Table, _check_results, _ordered, mean_std
+from tvrecon.table_format import PRETTY_NAMES, Table, check_results, mean_std
+from tvrecon.tables import RECON_TOUCHES, _ordered
 
 __all__ = ["build_seed_summary", "mean_std"]
 
@@ -31,7 +32,7 @@ def _cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
 
 def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
     """Chamfer (x1e-3) mean +- std over the seeds of every reconstruction experiment run with two or more seeds."""
-    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    recon = _ordered([r for r in check_results(results) if r["task"] == "reconstruction"])
     groups: dict[str, list[Mapping[str, Any]]] = {}
     for r in recon:
         groups.setdefault(str(r["name"]), []).append(r)

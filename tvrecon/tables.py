@@ -30,41 +30,36 @@ Touch controls (when a model was tested with ``touch_controls``): own touches ag
 
 from __future__ import annotations
 
-import csv
-import io
-import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from tvrecon.atomic import atomic_write_text
+from tvrecon.cls_report import build_table2
 from tvrecon.data.shapes.registry import RECON_CLASSES
+from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, fmt, mean_std
+
+# re-exported: the tables' public names from one module
+__all__ = [
+    "CLS_TOUCHES",
+    "PRETTY_NAMES",
+    "Table",
+    "build_fscore_table",
+    "build_table2",
+    "build_table3",
+    "build_table4",
+    "build_tables",
+    "build_touch_controls",
+    "collect_results",
+    "format_tables",
+    "main",
+    "mean_std",
+    "write_tables",
+]
 
 RECON_TOUCHES: tuple[int, ...] = (2, 5, 10)
-CLS_TOUCHES: tuple[int, ...] = (1, 2, 4, 6, 8, 10)
 DEFAULT_CLASSES: tuple[str, ...] = RECON_CLASSES  # the paper's 10 reconstruction classes, in Table 4's order
 
-# Row labels of the paper for the experiment names of configs/experiment (unknown names are shown as they are).
-PRETTY_NAMES: dict[str, str] = {
-    "full": "Ours",
-    "visual_only": "Visual only (Pixel2Mesh)",
-    "tactile_only": "Tactile only",
-    "no_gap": "W/o GAP",
-    "no_direction": "W/o tactile direction",
-    "region_1x1": "1x1 per-pixel fusion",
-    "region_5x5": "5x5 per-pixel fusion",
-    "single_stage": "Single-stage fusion",
-    "touch_depth": "Ours + touch depth (extension)",
-    "touch_geometry": "Touch geometry (beyond the paper)",
-    "smoke": "Ours (smoke, tiny data)",
-    "classify": "Tactile classifier",
-    "classify_paper_cpu": "Tactile classifier",
-    "classify_touch_set": "Touch-set classifier (beyond the paper)",
-    "classify_contact_cloud": "Contact-cloud classifier (beyond the paper)",
-    "classify_contact_point": "Contact points only (control)",
-    "classify_contact_cloud_images": "Contact cloud + tactile images (beyond the paper)",
-}
 # Row order of Tables 3 and 4 (paper order), unknown names after these in input order.
 ROW_ORDER: tuple[str, ...] = (
     "visual_only",
@@ -80,76 +75,6 @@ ROW_ORDER: tuple[str, ...] = (
     "smoke",
 )
 VISUAL_FOOTNOTE = "* a model that reads touches (fusion, touch geometry) evaluated with every touch masked out."
-
-
-@dataclass
-class Table:
-    """A titled table of strings, printable as Markdown and writable as CSV."""
-
-    title: str
-    header: list[str]
-    rows: list[list[str]]
-    notes: list[str] = field(default_factory=list)
-
-    def to_markdown(self) -> str:
-        """GitHub-flavoured Markdown: ``### title``, the table, then notes as lines."""
-        widths = [max(len(str(c)) for c in col) for col in zip(self.header, *self.rows)] if self.rows else None
-        if widths is None:
-            widths = [len(h) for h in self.header]
-
-        def line(cells: Sequence[str]) -> str:
-            return "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"
-
-        out = [f"### {self.title}", "", line(self.header), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
-        out += [line(r) for r in self.rows]
-        if not self.rows:
-            out.append("(no results)")
-        if self.notes:
-            out.append("")
-            out += self.notes
-        return "\n".join(out) + "\n"
-
-    def to_csv(self) -> str:
-        """CSV text: header row then data rows (notes are not included)."""
-        buf = io.StringIO()
-        writer = csv.writer(buf, lineterminator="\n")
-        writer.writerow(self.header)
-        writer.writerows(self.rows)
-        return buf.getvalue()
-
-
-def mean_std(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and sample standard deviation (ddof=1; 0 for a single value) of a non-empty sequence."""
-    if not values:
-        raise ValueError("mean_std needs at least one value")
-    mean = sum(values) / len(values)
-    std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
-    return mean, std
-
-
-def _fmt(value: float | None, digits: int = 2) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    return f"{value:.{digits}f}"
-
-
-def _check_results(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    out = list(results)
-    for r in out:
-        if not isinstance(r, Mapping) or "task" not in r or "name" not in r:
-            raise ValueError(
-                f"each result must be a mapping with keys 'task' and 'name' (a metrics.json written by "
-                f"train.py/eval.py), got {r!r:.200}"
-            )
-        if r["task"] == "reconstruction" and not isinstance(r.get("modes"), Mapping):
-            raise ValueError(
-                f"reconstruction result {r['name']!r} needs a 'modes' mapping, got {r.get('modes')!r:.200}"
-            )
-        if r["task"] == "classification" and not isinstance(r.get("accuracy"), Mapping):
-            raise ValueError(
-                f"classification result {r['name']!r} needs an 'accuracy' mapping, got {r.get('accuracy')!r:.200}"
-            )
-    return out
 
 
 def _ordered(results: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
@@ -195,7 +120,7 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
     Returns:
         The table; cells a model was not evaluated in are ``-``.
     """
-    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    recon = _ordered([r for r in check_results(results) if r["task"] == "reconstruction"])
     header = ["Model", "Visual"] + [f"Tactile {k}" for k in touches] + [f"Tactile & Visual {k}" for k in touches]
     names = [str(r["name"]) for r in recon]
     duplicates = {n for n in names if names.count(n) > 1}
@@ -203,18 +128,18 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
     starred = refined = False
     for r in recon:
         visual = _chamfer(r, "visual")
-        visual_cell = _fmt(visual)
+        visual_cell = fmt(visual)
         if visual is not None and r.get("modality") == "tactile_visual":
             visual_cell += "*"
             starred = True
         row = [_label(r, duplicates), visual_cell]
-        row += [_fmt(_chamfer(r, f"tactile@{k}")) for k in touches]
-        row += [_fmt(_chamfer(r, f"tv@{k}")) for k in touches]
+        row += [fmt(_chamfer(r, f"tactile@{k}")) for k in touches]
+        row += [fmt(_chamfer(r, f"tv@{k}")) for k in touches]
         rows.append(row)
         if any("+refine" in m for m in r["modes"]):  # test-time touch refinement (eval.py refine=true)
             row = [_label(r, duplicates) + " + touch refinement", "-"]
-            row += [_fmt(_chamfer(r, f"tactile@{k}+refine")) for k in touches]
-            row += [_fmt(_chamfer(r, f"tv@{k}+refine") or _chamfer(r, f"visual+refine@{k}")) for k in touches]
+            row += [fmt(_chamfer(r, f"tactile@{k}+refine")) for k in touches]
+            row += [fmt(_chamfer(r, f"tv@{k}+refine") or _chamfer(r, f"visual+refine@{k}")) for k in touches]
             rows.append(row)
             refined = True
     notes = [
@@ -225,9 +150,9 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
         full = by_name["full"]
         vis = by_name.get("visual_only")
         tac = by_name.get("tactile_only")
-        row = ["Ours (paper layout)", _fmt(_chamfer(vis, "visual")) if vis else "-"]
-        row += [_fmt(_chamfer(tac, f"tactile@{k}")) if tac else "-" for k in touches]
-        row += [_fmt(_chamfer(full, f"tv@{k}")) for k in touches]
+        row = ["Ours (paper layout)", fmt(_chamfer(vis, "visual")) if vis else "-"]
+        row += [fmt(_chamfer(tac, f"tactile@{k}")) if tac else "-" for k in touches]
+        row += [fmt(_chamfer(full, f"tv@{k}")) for k in touches]
         rows.append(row)
         notes.append(
             "Ours (paper layout): Visual from visual_only, Tactile from tactile_only, Tactile & Visual from full."
@@ -249,7 +174,7 @@ def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
         results: result dicts; classification results are skipped.
         classes: column order; default the classes found in the results (the paper's 10 first, in its order).
     """
-    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    recon = _ordered([r for r in check_results(results) if r["task"] == "reconstruction"])
     if classes is not None:
         cols = [str(c) for c in classes]
     else:  # the classes present, in the paper's order first
@@ -270,7 +195,7 @@ def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
         present = [v for v in values if v is not None]
         avg = sum(present) / len(present) if present else None
         label = _label(r, duplicates)
-        rows.append([label] + [_fmt(v) for v in values] + [_fmt(avg)])
+        rows.append([label] + [fmt(v) for v in values] + [fmt(avg)])
         mode_notes.append(f"{label}: {mode}")
     notes = [
         "Chamfer x1e-3 per class; Average is the mean over the classes present ('-' = class not in the test split).",
@@ -282,7 +207,7 @@ def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
 def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
     """Touch controls: chamfer (x1e-3) with the model's most touches, own vs replaced content (``:other``,
     ``:blank`` modes of ``touch_controls``), one row per model that was tested with them."""
-    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    recon = _ordered([r for r in check_results(results) if r["task"] == "reconstruction"])
     recon = [r for r in recon if any(":" in m for m in r["modes"])]
     names = [str(r["name"]) for r in recon]
     duplicates = {n for n in names if names.count(n) > 1}
@@ -291,8 +216,8 @@ def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
     for r in recon:
         base = primary_mode(r)
         rows.append(
-            [_label(r, duplicates), base.split("@")[1], _fmt(_chamfer(r, "visual"))]
-            + [_fmt(_chamfer(r, m)) for m in (base, f"{base}:other", f"{base}:blank")]
+            [_label(r, duplicates), base.split("@")[1], fmt(_chamfer(r, "visual"))]
+            + [fmt(_chamfer(r, m)) for m in (base, f"{base}:other", f"{base}:blank")]
         )
     notes = [
         "Chamfer x1e-3 with the touches' positions kept and their content replaced: another object's tactile images "
@@ -315,7 +240,7 @@ def build_fscore_table(results: Iterable[Mapping[str, Any]], touches: Sequence[i
     for the visual-only model, ``tv@k`` or ``tactile@k`` otherwise) and its refined mode (``<mode>+refine``, or
     ``visual+refine@k`` for the visual-only model; ``-`` when not evaluated).
     """
-    recon = _ordered([r for r in _check_results(results) if r["task"] == "reconstruction"])
+    recon = _ordered([r for r in check_results(results) if r["task"] == "reconstruction"])
     keys = sorted(
         {k for r in recon for e in r["modes"].values() for k in e if k.startswith("fscore@")},
         key=lambda k: float(k.split("@")[1]),
@@ -335,8 +260,8 @@ def build_fscore_table(results: Iterable[Mapping[str, Any]], touches: Sequence[i
                 base, refined = f"{prefix}{k}", f"{prefix}{k}+refine"
             if base not in modes or (prefix is None and k > 0 and refined not in modes):
                 continue
-            row = [_label(r, duplicates), str(k)] + [_fmt(_fscore(r, base, key), 1) for key in keys]
-            row += [_fmt(None if refined is None else _fscore(r, refined, key), 1) for key in keys]
+            row = [_label(r, duplicates), str(k)] + [fmt(_fscore(r, base, key), 1) for key in keys]
+            row += [fmt(None if refined is None else _fscore(r, refined, key), 1) for key in keys]
             rows.append(row)
     notes = [
         "F-score (%) at distance thresholds tau (objects have max extent 1; Pixel2Mesh uses tau and 2 tau), higher "
@@ -346,50 +271,9 @@ def build_fscore_table(results: Iterable[Mapping[str, Any]], touches: Sequence[i
     return Table("F-score by touches, without and with touch refinement", header, rows, notes)
 
 
-def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
-    """Table 2: classification accuracy (%) by number of touches, one row per model (experiment name), mean +- std
-    over its runs (seeds).
-
-    Each classification result contributes its accuracy for every touch count it was evaluated with; the std
-    is the sample standard deviation (ddof=1) over runs, 0 for a single run; ``n`` runs are reported.
-    """
-    cls = [r for r in _check_results(results) if r["task"] == "classification"]
-    groups: dict[str, list[Mapping[str, Any]]] = {}
-    for r in cls:
-        groups.setdefault(str(r["name"]), []).append(r)
-    rows: list[list[str]] = []
-    notes = []
-    for name, runs in groups.items():
-        for key, suffix in (("accuracy", ""), ("accuracy_other", ", another object's touches")):
-            if key != "accuracy" and not any(isinstance(r.get(key), Mapping) for r in runs):
-                continue
-            cells = [PRETTY_NAMES.get(name, name) + suffix]
-            counts = []
-            for k in touches:
-                values = [100.0 * float(r[key][str(k)]) for r in runs if str(k) in (r.get(key) or {})]
-                counts.append(len(values))
-                if not values:
-                    cells.append("-")
-                    continue
-                mean, std = mean_std(values)
-                cells.append(f"{mean:.1f} +- {std:.1f}")
-            rows.append(cells)
-            notes.append(f"{cells[0]}: runs per column " + ", ".join(f"{k}: {n}" for k, n in zip(touches, counts)))
-    notes.insert(0, "Accuracy (%) over the test split, mean +- sample std over the runs (seeds).")
-    if any(row[0].endswith("another object's touches") for row in rows):
-        notes.insert(
-            1,
-            "Another object's touches: each test sample classified from the touches of the next sample in its batch "
-            "with another label, scored against its own label (model.controls=[other]); chance is 1 / classes.",
-        )
-    return Table(
-        "Table 2: tactile classification accuracy (%)", ["Model"] + [f"{k}-touch" for k in touches], rows, notes
-    )
-
-
 def build_tables(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | None = None) -> dict[str, Table]:
     """The tables the results allow: ``table3``/``table4`` for reconstruction, ``table2`` for classification."""
-    results = _check_results(results)
+    results = check_results(results)
     tables: dict[str, Table] = {}
     if any(r["task"] == "reconstruction" for r in results):
         tables["table3"] = build_table3(results)

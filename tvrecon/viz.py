@@ -28,7 +28,7 @@ from matplotlib.collections import PolyCollection  # noqa: E402
 from tvrecon.atomic import atomic_savefig, atomic_write_text  # noqa: E402
 
 
-def _atomic_savefig(fig: plt.Figure, path: str | Path, dpi: int = 100) -> Path:
+def save_and_close(fig: plt.Figure, path: str | Path, dpi: int = 100) -> Path:
     """Save ``fig`` atomically and close it (pyplot keeps every open figure alive)."""
     try:
         return atomic_savefig(fig, path, dpi=dpi, bbox_inches="tight")
@@ -140,7 +140,7 @@ def render_mesh_comparison(
         ax_gt.set_title(f"ground truth, {view} ({len(gt)} pts)", fontsize=9)
     if title:
         fig.suptitle(title)
-    return _atomic_savefig(fig, path)
+    return save_and_close(fig, path)
 
 
 def export_obj(verts: torch.Tensor | np.ndarray, faces: torch.Tensor | np.ndarray, path: str | Path) -> Path:
@@ -215,7 +215,7 @@ def plot_loss_curves(metrics_csv: str | Path, path: str | Path, keys: Sequence[s
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.tight_layout()
-    return _atomic_savefig(fig, path)
+    return save_and_close(fig, path)
 
 
 def find_metrics_csv(run: str | Path) -> Path:
@@ -267,7 +267,7 @@ def plot_run_comparison(
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     fig.tight_layout()
-    return _atomic_savefig(fig, path)
+    return save_and_close(fig, path)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
