@@ -7,7 +7,9 @@ over the runs (seeds) of each k:
 - :func:`build_per_class_table`: one row per class, accuracy (%) with k touches as mean +- std over the runs;
 - :func:`plot_confusion`: a row-normalised confusion matrix as a PNG (the rows are true classes, so the diagonal is
   the per-class accuracy);
-- :func:`write_confusion_plots`: the fewest and the most touches evaluated, ``confusion_<k>touch.png``.
+- :func:`write_confusion_plots`: the fewest and the most touches evaluated, ``confusion_<k>touch.png``;
+- :func:`plot_accuracy_by_touches`: Table 2 as curves, ``accuracy_by_touches.png`` (both written by
+  :func:`write_classification_plots`).
 
 :func:`build_table2` is Table 2 itself: accuracy by touch count, one row per model (and one per control it ran).
 
@@ -25,7 +27,15 @@ import numpy as np
 
 from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, mean_std
 
-__all__ = ["build_per_class_table", "build_table2", "confusion_by_touches", "plot_confusion", "write_confusion_plots"]
+__all__ = [
+    "build_per_class_table",
+    "build_table2",
+    "confusion_by_touches",
+    "plot_accuracy_by_touches",
+    "plot_confusion",
+    "write_classification_plots",
+    "write_confusion_plots",
+]
 
 
 def _cls(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
@@ -145,6 +155,55 @@ def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | P
             title = f"{PRETTY_NAMES.get(name, name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
             paths.append(plot_confusion(counts, names, Path(out_dir) / f"{stem}{k}touch.png", title))
     return paths
+
+
+def plot_accuracy_by_touches(results: Iterable[Mapping[str, Any]], path: str | Path) -> Path | None:
+    """Table 2 as a picture: accuracy (%) against touches, one line per model (mean over its runs, a band of +- one
+    sample std), its 'another object's touches' control dashed in the same colour; None without classification
+    results.
+    """
+    from tvrecon.viz import plt, save_and_close
+
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in check_results(results):
+        if r["task"] == "classification":
+            groups.setdefault(str(r["name"]), []).append(r)
+    if not groups:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    chance = None
+    for i, (name, runs) in enumerate(groups.items()):
+        colour = f"C{i % 10}"
+        for key, style in (("accuracy", "-"), ("accuracy_other", "--")):
+            ks = sorted({int(k) for r in runs for k in (r.get(key) or {})})
+            if not ks:
+                continue
+            stats = [mean_std([100.0 * float(r[key][str(k)]) for r in runs if str(k) in r.get(key, {})]) for k in ks]
+            mean = np.array([m for m, _ in stats])
+            std = np.array([s for _, s in stats])
+            label = PRETTY_NAMES.get(name, name) + (" (another object's touches)" if key != "accuracy" else "")
+            ax.plot(ks, mean, style, marker="o", color=colour, label=f"{label}, {len(runs)} run{'s' * (len(runs) > 1)}")
+            ax.fill_between(ks, mean - std, mean + std, color=colour, alpha=0.15)
+        classes = runs[0].get("classes")
+        chance = 100.0 / len(classes) if classes else chance
+    if chance is not None:
+        ax.axhline(chance, color="grey", lw=0.8, ls=":", label=f"chance ({chance:.1f}%)")
+    ax.set_xlabel("touches")
+    ax.set_ylabel("test accuracy (%)")
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("Tactile classification by number of touches", fontsize=10)
+    return save_and_close(fig, path, dpi=110)
+
+
+def write_classification_plots(results: Iterable[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
+    """The confusion matrices (:func:`write_confusion_plots`) and ``accuracy_by_touches.png``
+    (:func:`plot_accuracy_by_touches`) in ``out_dir``."""
+    results = list(results)
+    paths = write_confusion_plots(results, out_dir)
+    curve = plot_accuracy_by_touches(results, Path(out_dir) / "accuracy_by_touches.png")
+    return paths + ([curve] if curve is not None else [])
 
 
 def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:

@@ -18,7 +18,7 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, open_dict
 
 from tvrecon.atomic import atomic_write_text
-from tvrecon.cls_report import write_confusion_plots
+from tvrecon.cls_report import write_classification_plots
 from tvrecon.tables import build_tables, format_tables, write_tables
 
 __all__ = ["exit_on_sigterm", "fix_test_touches", "last_checkpoint", "report_tables", "save_results"]
@@ -37,10 +37,10 @@ def report_tables(results: list[dict[str, Any]], out_dir: str | Path, echo: bool
     if not tables:
         return ""
     paths = write_tables(tables, Path(out_dir) / "tables")
-    plots = write_confusion_plots(results, Path(out_dir) / "tables")
+    plots = write_classification_plots(results, Path(out_dir) / "tables")
     text = format_tables(tables)
     if echo:
-        shown = "".join(f"\n(confusion matrix: {p})" for p in plots)
+        shown = "".join(f"\n(plot: {p})" for p in plots)
         print("\n" + text + f"\n(tables written to {paths[0].parent})" + shown, flush=True)
     return text
 

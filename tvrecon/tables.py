@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from tvrecon.atomic import atomic_write_text
-from tvrecon.cls_report import build_table2
+from tvrecon.cls_report import build_table2, write_classification_plots
 from tvrecon.data.shapes.registry import RECON_CLASSES
 from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, fmt, mean_std
 
@@ -366,11 +366,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("the metrics.json files hold no reconstruction or classification results")
     print(format_tables(tables))
     if args.out:
-        from tvrecon.cls_report import write_confusion_plots  # imports this module
-
         print(f"(tables written to {write_tables(tables, args.out)[0].parent})")
-        for path in write_confusion_plots(collect_results(args.paths), args.out):
-            print(f"(confusion matrix: {path})")
+        for path in write_classification_plots(collect_results(args.paths), args.out):
+            print(f"(plot: {path})")
     return 0
 
 

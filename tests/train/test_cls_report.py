@@ -6,7 +6,14 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from tvrecon.cls_report import build_per_class_table, confusion_by_touches, plot_confusion, write_confusion_plots
+from tvrecon.cls_report import (
+    build_per_class_table,
+    confusion_by_touches,
+    plot_accuracy_by_touches,
+    plot_confusion,
+    write_classification_plots,
+    write_confusion_plots,
+)
 from tvrecon.run import report_tables
 from tvrecon.tables import build_tables
 
@@ -66,6 +73,16 @@ def test_confusion_plots_are_written_for_fewest_and_most_touches(tmp_path: Path)
     assert not list(tmp_path.glob("*.tmp*"))
     with pytest.raises(ValueError, match="must be"):
         plot_confusion(np.ones((2, 3)), ["a", "b"], tmp_path / "bad.png", "bad")
+
+
+def test_accuracy_curves_with_the_control_are_drawn(tmp_path: Path) -> None:
+    runs = [{**r, "accuracy_other": {k: 0.0 for k in r["accuracy"]}} for r in RUNS]
+    path = plot_accuracy_by_touches(runs, tmp_path / "acc.png")
+    assert path is not None and mpimg.imread(path).shape[0] > 100
+    recon = {"task": "reconstruction", "name": "full", "modes": {}}
+    assert plot_accuracy_by_touches([recon], tmp_path / "none.png") is None and not (tmp_path / "none.png").exists()
+    names = [p.name for p in write_classification_plots(RUNS, tmp_path / "all")]
+    assert names == ["confusion_1touch.png", "confusion_10touch.png", "accuracy_by_touches.png"]
 
 
 def test_models_are_kept_apart(tmp_path: Path) -> None:
