@@ -14,7 +14,8 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
 - :func:`p2g_contrib`: fixed-corotated Kirchhoff stress (paper eq. 4), the affine momentum matrix of eq. 6 and each
   particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` as one ``(P, 108)`` row per particle (the
   ``index_add_`` scatter stays eager);
-- :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid);
+- :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid; compiled as
+  part of :func:`tvrecon.sim.mpm_compiled_grid.grid_collide`, the grid update and colliders);
 - :func:`g2p_update`: the gather of the 27 node velocities straight from the ``(N, 3)`` grid (no bounds asserts:
   the indices are inside the block by construction), the APIC sums and the particle update of eq. 8-11.
 
@@ -229,7 +230,7 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "stencil": (1,),
     "polar": (1,),
     "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
-    "sums": (0,),
+    "grid": (0, None, None, 0, 1),
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
 }
 
@@ -240,8 +241,9 @@ _OPTIONS = {"assert_indirect_indexing": False}
 
 
 class CompiledKernels:
-    """The four functions above wrapped in ``torch.compile`` with dynamic particle / node counts (they vary from step
-    to step and press to press; the 3x3 sizes stay static).
+    """The per-particle functions above and :func:`tvrecon.sim.mpm_compiled_grid.grid_collide` wrapped in
+    ``torch.compile`` with dynamic particle / node counts (they vary from step to step and press to press; the 3x3
+    sizes stay static).
 
     ``kernels(name, *args)`` calls one; the first failure (no C++ compiler, an inductor error) is logged, warned once,
     marks the kernels failed (:func:`compiled_kernels` then returns None) and raises :class:`CompileFailed` so that
@@ -251,13 +253,15 @@ class CompiledKernels:
     failed = False
 
     def __init__(self) -> None:
+        from .mpm_compiled_grid import grid_collide  # imports node_sums from here
+
         self._fns: dict[str, Callable] = {
             name: torch.compile(f, options=_OPTIONS)
             for name, f in (
                 ("stencil", stencil_weights),
                 ("polar", polar_fixed),
                 ("p2g", p2g_contrib),
-                ("sums", node_sums),
+                ("grid", grid_collide),
                 ("g2p", g2p_update),
             )
         }

@@ -21,6 +21,7 @@ __all__ = [
     "Stencil",
     "Transfer",
     "block_layout",
+    "check_grid_speed",
     "share_node_force",
     "shift_nodes",
     "stencil_offsets",
@@ -108,6 +109,16 @@ def block_layout(
         else:
             lin = lin + batch * nb
     return lo, lin, D
+
+
+def check_grid_speed(vmax: float, dt: float, dx: float) -> None:
+    """Raise FloatingPointError when the fastest grid node (``vmax``, its largest velocity component) would move more
+    than one cell in a step, or is NaN."""
+    if not vmax * dt <= dx:  # also catches NaN
+        raise FloatingPointError(
+            f"MPM state exploded (grid speed {vmax:.3g} moves {vmax * dt / dx:.3g} cells per step, NaN or > 1): "
+            f"{FIX_HINT}"
+        )
 
 
 def share_node_force(transfer: Transfer, mass: Tensor, o_int: Tensor) -> Tensor:
