@@ -165,3 +165,19 @@ def test_grid_collide_matches_eager_grid_update(friction, damping):
     torch.testing.assert_close(force, solver.last_force, rtol=1e-5, atol=1e-3)
     assert force.abs().max() > 1.0 and force[1].abs().max() == 0
     torch.testing.assert_close(vmax, ref.abs().amax())
+
+
+@pytest.mark.parametrize("B", [1, 3])
+def test_stencil_bounds_and_block_index_match_block_layout(B):
+    """The compiled path's block bounds and node index (plain functions) give block_layout's lo, lin and D."""
+    from tvrecon.sim.mpm_compiled import block_index, stencil_weights
+    from tvrecon.sim.mpm_grid import block_dims, block_layout
+
+    x = 0.3 + 0.4 * torch.rand(B * 50, 3, generator=torch.Generator().manual_seed(1))
+    batch = torch.arange(B).repeat_interleave(50)
+    base_t, _, _, lo_f, hi_f = stencil_weights(x.T.contiguous(), 32.0, B)
+    lo_ref, lin_ref, D_ref = block_layout(base_t.T, batch if B > 1 else None, B, 50 if B > 1 else None)
+    D = block_dims(lo_f.T, hi_f.T, B)
+    lo = lo_f.to(torch.int64)
+    lin = block_index(base_t, lo, torch.tensor([D[1], D[2], D[0] * D[1] * D[2]]))
+    assert D == D_ref and torch.equal(lo.T, lo_ref) and torch.equal(lin, lin_ref)

@@ -6,7 +6,8 @@ control flow) so that inductor fuses each function into a few loops (C++/OpenMP 
 per-particle tensor is channel-first, ``(3, P)`` / ``(9, P)`` contiguous: inductor's C++ backend vectorizes a loop
 only when its loads and stores are contiguous along the particles (``(P, 3, 3)`` rows give scalar loops).
 
-- :func:`stencil_weights`: ``base``, ``fx`` and the 27 quadratic B-spline weights;
+- :func:`stencil_weights`: ``base``, ``fx``, the 27 quadratic B-spline weights and each scene's bounds of ``base``;
+- :func:`block_index`: each particle's base node on the block grid (``mpm_grid.block_layout``'s ``lin``);
 - :func:`polar_fixed`: the scaled Newton polar decomposition of :func:`tvrecon.sim.materials.polar_decomposition`,
   a fixed number of iterations with a per-particle stop (a particle keeps the iterate at which its step fell below
   the tolerance, as in the eager loop); it also returns whether every particle converged, else the caller falls
@@ -39,6 +40,7 @@ __all__ = [
     "CompiledKernels",
     "compiled_kernels",
     "stencil_weights",
+    "block_index",
     "polar_fixed",
     "p2g_contrib",
     "node_sums",
@@ -81,14 +83,29 @@ def _mm(A: list[Tensor], B: list[Tensor], bt: bool = False) -> list[Tensor]:
     return [A[3 * a] * B[b] + A[3 * a + 1] * B[3 + b] + A[3 * a + 2] * B[6 + b] for a in range(3) for b in range(3)]
 
 
-def stencil_weights(xt: Tensor, inv_dx: float) -> tuple[Tensor, Tensor, Tensor]:
-    """From positions xt (3, P): ``base_f = floor(x/dx - 0.5)`` (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P)."""
+def stencil_weights(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """From positions xt (3, P) of B scenes of P / B contiguous particles each: ``base_f = floor(x/dx - 0.5)``
+    (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P) and the per-scene bounds of base_f, lo_f and hi_f (3, B) (for
+    :func:`tvrecon.sim.mpm_grid.block_dims`; exact, as min and max are)."""
     Xg = xt * inv_dx
     base_f = torch.floor(Xg - 0.5)
     fx = Xg - base_f
     wa = [(0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2) for f in fx]
     w = torch.stack([wa[0][i] * wa[1][j] * wa[2][k] for i, j, k in _OFFS], 0)
-    return base_f, fx, w
+    per_scene = base_f.view(3, B, -1)
+    return base_f, fx, w, per_scene.amin(2), per_scene.amax(2)
+
+
+def block_index(base_f: Tensor, lo: Tensor, dims: Tensor) -> Tensor:
+    """Linear block-grid index (P,) int64 of each particle's base node, as :func:`tvrecon.sim.mpm_grid.block_layout`
+    numbers them (scene-major, then i, j, k; integer arithmetic, so the same values).
+
+    base_f: (3, P) base nodes (float, whole numbers) of B scenes of P / B contiguous particles; lo: (3, B) int64 block
+    origins; dims: (3,) int64 ``[D1, D2, D0 D1 D2]`` (a tensor, so that a new block size does not recompile)."""
+    B = lo.shape[1]
+    local = base_f.to(torch.int64).view(3, B, -1) - lo[:, :, None]
+    scene = torch.arange(B, device=base_f.device, dtype=torch.int64)[:, None]
+    return ((local[0] * dims[0] + local[1]) * dims[1] + local[2] + scene * dims[2]).view(-1)
 
 
 def polar_fixed(Ft: Tensor, stop: float, n_iter: int = NEWTON_ITERS) -> tuple[Tensor, Tensor]:
@@ -105,7 +122,7 @@ def polar_fixed(Ft: Tensor, stop: float, n_iter: int = NEWTON_ITERS) -> tuple[Te
         inv_t = [c / det for c in cof]
         n_inv = sum(c * c for c in inv_t)
         n_x = sum(e * e for e in X)
-        gs = (n_inv / n_x).pow(0.25)
+        gs = torch.sqrt(torch.sqrt(n_inv / n_x))  # ^(1/4); pow is a slow libm call in the kernel
         X_new = [0.5 * (gs * e + c / gs) for e, c in zip(X, inv_t)]
         delta = (X_new[0] - X[0]).abs()
         for e, en in zip(X[1:], X_new[1:]):
@@ -228,6 +245,7 @@ def g2p_update(
 # then emits scalar (unvectorized) loops with symbolic strides.
 _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "stencil": (1,),
+    "index": (1, 1),
     "polar": (1,),
     "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
     "grid": (0, None, None, 0, 1),
@@ -259,6 +277,7 @@ class CompiledKernels:
             name: torch.compile(f, options=_OPTIONS)
             for name, f in (
                 ("stencil", stencil_weights),
+                ("index", block_index),
                 ("polar", polar_fixed),
                 ("p2g", p2g_contrib),
                 ("grid", grid_collide),

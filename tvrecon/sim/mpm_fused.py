@@ -6,7 +6,8 @@ layout only: each particle's 108 contributions are one contiguous row of a node-
 (``index_add_`` along the nodes, ~1.9x faster than the eager step's ``(108, N)`` columns), whose 27 offsets are
 then summed by the compiled ``grid_collide`` (another summation order: equal to round-off), which also does the grid
 update and the colliders (their fields looked up only when a block moves, ``mpm_compiled_grid.ColliderFields``).
-G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block layout is the eager code.
+G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
+node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
 without a copy.
 """
@@ -23,7 +24,7 @@ from torch import Tensor
 from .colliders import Collider
 from .materials import polar_decomposition
 from .mpm_compiled_grid import ColliderFields
-from .mpm_grid import Stencil, Transfer, block_layout, check_grid_speed
+from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
@@ -86,8 +87,16 @@ def fused_step(
     dx, inv_dx, dt = solver.dx, solver.inv_dx, solver.dt
     # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
     xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
-    base_t, fx, w = k("stencil", xt, inv_dx)
-    lo, lin, D = block_layout(base_t.T, state.batch, B, block)
+    if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index compiled
+        base_t, fx, w, lo_f, hi_f = k("stencil", xt, inv_dx, B)
+        D = block_dims(lo_f.T, hi_f.T, B)
+        lo_t = lo_f.to(torch.int64)  # (3, B)
+        dims = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
+        lin = k("index", base_t, lo_t, dims)
+        lo = lo_t.T
+    else:
+        base_t, fx, w, _, _ = k("stencil", xt, inv_dx, 1)
+        lo, lin, D = block_layout(base_t.T, state.batch, B, block)
     n_nodes = B * D[0] * D[1] * D[2]
     st = Stencil(fx.T, w, lo, lin, D, n_nodes, solver._chunk(P))
 
