@@ -48,7 +48,7 @@ def test_compiled_step_equals_eager(batched):
     cfg = MPMConfig(n_grid=32)
     eager = MLSMPM(cfg)
     comp = MLSMPM(cfg, compile=True)
-    comp.chunk_size = 256  # several P2G chunks, and a shorter last one (dynamic shapes)
+    comp.compiled_chunk_size = 256  # several P2G chunks, and a shorter last one (dynamic shapes)
     s_ref, f_ref = _press(eager, 30, batched)
     s_new, f_new = _press(comp, 30, batched)
     assert comp.compiled, "compilation fell back to eager"

@@ -98,7 +98,7 @@ def fused_step(
         base_t, fx, w, _, _ = k("stencil", xt, inv_dx, 1)
         lo, lin, D = block_layout(base_t.T, state.batch, B, block)
     n_nodes = B * D[0] * D[1] * D[2]
-    st = Stencil(fx.T, w, lo, lin, D, n_nodes, solver._chunk(P))
+    st = Stencil(fx.T, w, lo, lin, D, n_nodes, solver.compiled_chunk_size if solver.compiled_chunk_size > 0 else P)
 
     stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
     Rt, converged = k("polar", Ft, stop)
