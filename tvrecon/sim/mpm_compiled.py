@@ -17,8 +17,9 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
   ``index_add_`` scatter stays eager);
 - :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid; compiled as
   part of :func:`tvrecon.sim.mpm_compiled_grid.grid_collide`, the grid update and colliders);
-- :func:`g2p_update`: the gather of the 27 node velocities straight from the ``(N, 3)`` grid (no bounds asserts:
-  the indices are inside the block by construction), the APIC sums and the particle update of eq. 8-11.
+- :func:`g2p_update`: the gather of the 27 node velocities straight from the grid, as 9 runs of 3 neighbouring nodes
+  (no bounds asserts: the indices are inside the block by construction), the APIC sums and the particle update of
+  eq. 8-11.
 
 Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
 The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
@@ -210,14 +211,16 @@ def g2p_update(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Gather v(base + o) straight from the grid velocities, then paper eq. 8-11.
 
-    gv: (N, 3) grid velocities (node-major: a particle's 27 nodes are 9 runs of 3 neighbouring rows); offs: (27,)
-    int64 node-axis offset of each stencil node (``i S0 + j S1 + k``); lin: (P,) base node of each particle.
-    Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P), C, F (9, P).
+    gv: (N - 2, 9) runs of 3 neighbouring node velocities, row n = ``[v(n), v(n + 1), v(n + 2)]`` (the caller's
+    ``(N, 3)`` grid viewed with strides (3, 1), no copy: a particle's 27 nodes are 9 such runs); offs: (9,) int64
+    node-axis offset of each run (``i S0 + j S1``); lin: (P,) base node of each particle. One index per run instead of
+    one per node. Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P),
+    C, F (9, P).
     """
-    g = gv[lin[None, :] + offs[:, None]]  # (27, P, 3): indirect loads fused into the sums below by inductor
+    g = gv[lin[None, :] + offs[:, None]]  # (9, P, 9): indirect loads fused into the sums below by inductor
     S = []  # S[c] = [sum_o w v_c, sum_o w v_c o_i, ... o_j, ... o_k]
     for c in range(3):
-        t = [w[o] * g[o, :, c] for o in range(27)]
+        t = [w[o] * g[o // 3, :, 3 * (o % 3) + c] for o in range(27)]  # o = (i, j, k): run 3 i + j, node k
         row = [sum(t)]
         for ax in range(3):
             row.append(

@@ -116,9 +116,10 @@ def fused_step(
             w[:, sl], mu, lam, dt, dx, inv_dx,
         )  # fmt: skip
         G.index_add_(0, lin[sl], contrib)  # one contiguous row of 108 per particle
-    gv = _grid_update(solver, G, colliders, st)  # (N, 3)
+    gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
-    offs = o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2]  # (27,) their node-axis offsets
+    offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
+    runs = gv.as_strided((gv.shape[0] - 2, 9), (3, 1))  # row n: nodes n, n+1, n+2 (a view; base + 2 S0 + 2 S1 < N - 2)
     if hand_velocity is None:
         hvt = None
     elif hand_velocity.dim() == 1:
@@ -127,5 +128,5 @@ def fused_step(
         hvt = hand_velocity.T.contiguous()
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
-    xn, vn, Cn, Fn = k("g2p", gv, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
+    xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return _cf_state(state, xn, vn, Cn, Fn)
