@@ -4,6 +4,7 @@ Marked slow: compiling the four kernels takes ~10-40 s on one CPU core. Skipped 
 C++ compiler); the fallback test runs everywhere.
 """
 
+import math
 import shutil
 
 import pytest
@@ -47,7 +48,7 @@ def test_compiled_step_equals_eager(batched):
     cfg = MPMConfig(n_grid=32)
     eager = MLSMPM(cfg)
     comp = MLSMPM(cfg, compile=True)
-    comp.chunk_size = 256  # several P2G chunks, and a shorter last one (dynamic shapes)
+    comp.compiled_chunk_size = 256  # several P2G chunks, and a shorter last one (dynamic shapes)
     s_ref, f_ref = _press(eager, 30, batched)
     s_new, f_new = _press(comp, 30, batched)
     assert comp.compiled, "compilation fell back to eager"
@@ -133,3 +134,50 @@ def test_compiled_press_images_match_eager():
     assert ref.contact and ref.image.abs().max() > 0.1 and ref.steps == new.steps
     assert (new.image - ref.image).abs().max() <= 1e-4
     torch.testing.assert_close(new.force, ref.force, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("friction,damping", [(0.0, 0.0), (0.5, 2.0)])
+def test_grid_collide_matches_eager_grid_update(friction, damping):
+    """The compiled grid side (plain function + collider fields) equals the eager grid update and collide_grid:
+    two scenes, one with a sphere and one without a collider, Coulomb friction and damping."""
+    from tvrecon.sim.mpm_compiled_grid import ColliderFields, grid_collide
+    from tvrecon.sim.mpm_grid import Stencil
+
+    D = [6, 5, 7]
+    nb = D[0] * D[1] * D[2]
+    N, S0, S1 = 2 * nb, D[1] * D[2], D[2]
+    gen = torch.Generator().manual_seed(0)
+    G = torch.randn(N, 108, generator=gen)
+    G[:, :27] = G[:, :27].abs()  # positive masses
+    G[::5, :27] = 0.0  # and some empty rows
+    lo = torch.tensor([[12, 12, 10], [13, 11, 10]])
+    cfg = MPMConfig(n_grid=32, friction=friction, damping=damping)
+    solver = MLSMPM(cfg)
+    cols = [SphereCollider((0.5, 0.5, 0.4), 0.1), None]
+    st = Stencil(torch.zeros(1, 3), torch.zeros(27, 1), lo, torch.zeros(1, dtype=torch.int64), D, N, 1)
+    ref = solver._grid_update(node_sums(G, S0, S1), cols, st)
+    sdf, nrm = ColliderFields()(cols, lo, D, solver.dx, G.dtype, G.device)
+    damp = math.exp(-damping * solver.dt) if damping > 0 else 1.0
+    gv, gm, node_force, force, vmax = grid_collide(G, S0, S1, sdf, nrm, 2, solver.dt, friction, damp)
+    assert bool(((sdf < 0) & (gm > 0)).any()), "some nodes must be inside the sphere"
+    torch.testing.assert_close(gv, ref, rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(node_force, solver._last_transfer.node_force, rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(force, solver.last_force, rtol=1e-5, atol=1e-3)
+    assert force.abs().max() > 1.0 and force[1].abs().max() == 0
+    torch.testing.assert_close(vmax, ref.abs().amax())
+
+
+@pytest.mark.parametrize("B", [1, 3])
+def test_stencil_bounds_and_block_index_match_block_layout(B):
+    """The compiled path's block bounds and node index (plain functions) give block_layout's lo, lin and D."""
+    from tvrecon.sim.mpm_compiled import block_index, stencil_weights
+    from tvrecon.sim.mpm_grid import block_dims, block_layout
+
+    x = 0.3 + 0.4 * torch.rand(B * 50, 3, generator=torch.Generator().manual_seed(1))
+    batch = torch.arange(B).repeat_interleave(50)
+    base_t, _, _, lo_f, hi_f = stencil_weights(x.T.contiguous(), 32.0, B)
+    lo_ref, lin_ref, D_ref = block_layout(base_t.T, batch if B > 1 else None, B, 50 if B > 1 else None)
+    D = block_dims(lo_f.T, hi_f.T, B)
+    lo = lo_f.to(torch.int64)
+    lin = block_index(base_t, lo, torch.tensor([D[1], D[2], D[0] * D[1] * D[2]]))
+    assert D == D_ref and torch.equal(lo.T, lo_ref) and torch.equal(lin, lin_ref)

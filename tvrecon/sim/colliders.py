@@ -21,8 +21,10 @@ __all__ = [
     "PlaneCollider",
     "MeshCollider",
     "OPEN_SHELL_CELLS",
+    "block_nodes",
     "clip_to_box",
     "collide_grid",
+    "collider_at_block",
 ]
 
 #: Half-thickness, in grid cells, of the shell an open (non-watertight) mesh is given by ``MeshCollider`` without
@@ -90,21 +92,9 @@ def collide_grid(
             forces.append(torch.zeros(3, dtype=dtype, device=device))
             continue
         mb = gm[b * nb : (b + 1) * nb]
-        if hasattr(col, "at_block"):  # tabulated collider: the block's nodes by per-axis indices (no interpolation)
-            sdf, n = col.at_block(lo_list[b], D, device)
-            sdf, n = sdf.to(dtype), n.to(dtype)
-        else:
-            if local is None:
-                a0, a1, a2 = (torch.arange(d, device=device) for d in D)
-                local = torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(nb, 3)
-            node = local + torch.tensor(lo_list[b], device=device)  # (nb, 3) global node indices
-            if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
-                sdf, n = col.at_nodes(node)
-                sdf, n = sdf.to(dtype), n.to(dtype)
-            else:
-                pos = node.to(dtype) * dx  # (nb, 3) node positions
-                sdf = col.sdf(pos)
-                n = col.normal(pos)
+        if local is None and not hasattr(col, "at_block"):
+            local = block_nodes(D, device)
+        sdf, n = collider_at_block(col, lo_list[b], D, dx, dtype, device, local)
         vn = (vb * n).sum(1, keepdim=True)  # (nb, 1)
         hit = (sdf < 0)[:, None] & (vn < 0) & (mb > 0)[:, None]
         vt = vb - vn * n
@@ -120,6 +110,38 @@ def collide_grid(
     if B == 1:  # one scene: its block is the grid (no copy)
         return pieces[0], torch.stack(forces, 0), node_forces[0]
     return torch.cat(pieces, 0), torch.stack(forces, 0), torch.cat(node_forces, 0)
+
+
+def block_nodes(D: Sequence[int], device: str | torch.device = "cpu") -> Tensor:
+    """(D[0] D[1] D[2], 3) int64 node offsets of a block, i slowest."""
+    a0, a1, a2 = (torch.arange(d, device=device) for d in D)
+    return torch.stack(torch.meshgrid(a0, a1, a2, indexing="ij"), -1).reshape(-1, 3)
+
+
+def collider_at_block(
+    col: Collider,
+    lo: Sequence[int],
+    D: Sequence[int],
+    dx: float,
+    dtype: torch.dtype,
+    device: str | torch.device,
+    local: Tensor | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Signed distance (nb,) and unit normal (nb, 3) of ``col`` at the nodes of a block (``D`` nodes from global node
+    ``lo``, i slowest), in ``dtype``: a tabulated collider's own nodes (``at_block`` / ``at_nodes``, no
+    interpolation), else its ``sdf`` / ``normal`` at the node positions. ``local``: :func:`block_nodes` of ``D``
+    when the caller has it (built here otherwise)."""
+    if hasattr(col, "at_block"):  # tabulated collider: the block's nodes by per-axis indices (no interpolation)
+        sdf, n = col.at_block(lo, D, device)
+        return sdf.to(dtype), n.to(dtype)
+    if local is None:
+        local = block_nodes(D, device)
+    node = local + torch.tensor(list(lo), device=device)  # (nb, 3) global node indices
+    if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
+        sdf, n = col.at_nodes(node)
+        return sdf.to(dtype), n.to(dtype)
+    pos = node.to(dtype) * dx  # (nb, 3) node positions
+    return col.sdf(pos), col.normal(pos)
 
 
 def _check_points(points: Tensor) -> None:

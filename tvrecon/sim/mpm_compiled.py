@@ -6,7 +6,8 @@ control flow) so that inductor fuses each function into a few loops (C++/OpenMP 
 per-particle tensor is channel-first, ``(3, P)`` / ``(9, P)`` contiguous: inductor's C++ backend vectorizes a loop
 only when its loads and stores are contiguous along the particles (``(P, 3, 3)`` rows give scalar loops).
 
-- :func:`stencil_weights`: ``base``, ``fx`` and the 27 quadratic B-spline weights;
+- :func:`stencil_weights`: ``base``, ``fx``, the 27 quadratic B-spline weights and each scene's bounds of ``base``;
+- :func:`block_index`: each particle's base node on the block grid (``mpm_grid.block_layout``'s ``lin``);
 - :func:`polar_fixed`: the scaled Newton polar decomposition of :func:`tvrecon.sim.materials.polar_decomposition`,
   a fixed number of iterations with a per-particle stop (a particle keeps the iterate at which its step fell below
   the tolerance, as in the eager loop); it also returns whether every particle converged, else the caller falls
@@ -14,9 +15,11 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
 - :func:`p2g_contrib`: fixed-corotated Kirchhoff stress (paper eq. 4), the affine momentum matrix of eq. 6 and each
   particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` as one ``(P, 108)`` row per particle (the
   ``index_add_`` scatter stays eager);
-- :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid);
-- :func:`g2p_update`: the gather of the 27 node velocities straight from the ``(N, 3)`` grid (no bounds asserts:
-  the indices are inside the block by construction), the APIC sums and the particle update of eq. 8-11.
+- :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid; compiled as
+  part of :func:`tvrecon.sim.mpm_compiled_grid.grid_collide`, the grid update and colliders);
+- :func:`g2p_update`: the gather of the 27 node velocities straight from the grid, as 9 runs of 3 neighbouring nodes
+  (no bounds asserts: the indices are inside the block by construction), the APIC sums and the particle update of
+  eq. 8-11.
 
 Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
 The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
@@ -38,6 +41,7 @@ __all__ = [
     "CompiledKernels",
     "compiled_kernels",
     "stencil_weights",
+    "block_index",
     "polar_fixed",
     "p2g_contrib",
     "node_sums",
@@ -80,14 +84,29 @@ def _mm(A: list[Tensor], B: list[Tensor], bt: bool = False) -> list[Tensor]:
     return [A[3 * a] * B[b] + A[3 * a + 1] * B[3 + b] + A[3 * a + 2] * B[6 + b] for a in range(3) for b in range(3)]
 
 
-def stencil_weights(xt: Tensor, inv_dx: float) -> tuple[Tensor, Tensor, Tensor]:
-    """From positions xt (3, P): ``base_f = floor(x/dx - 0.5)`` (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P)."""
+def stencil_weights(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """From positions xt (3, P) of B scenes of P / B contiguous particles each: ``base_f = floor(x/dx - 0.5)``
+    (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P) and the per-scene bounds of base_f, lo_f and hi_f (3, B) (for
+    :func:`tvrecon.sim.mpm_grid.block_dims`; exact, as min and max are)."""
     Xg = xt * inv_dx
     base_f = torch.floor(Xg - 0.5)
     fx = Xg - base_f
     wa = [(0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2) for f in fx]
     w = torch.stack([wa[0][i] * wa[1][j] * wa[2][k] for i, j, k in _OFFS], 0)
-    return base_f, fx, w
+    per_scene = base_f.view(3, B, -1)
+    return base_f, fx, w, per_scene.amin(2), per_scene.amax(2)
+
+
+def block_index(base_f: Tensor, lo: Tensor, dims: Tensor) -> Tensor:
+    """Linear block-grid index (P,) int64 of each particle's base node, as :func:`tvrecon.sim.mpm_grid.block_layout`
+    numbers them (scene-major, then i, j, k; integer arithmetic, so the same values).
+
+    base_f: (3, P) base nodes (float, whole numbers) of B scenes of P / B contiguous particles; lo: (3, B) int64 block
+    origins; dims: (3,) int64 ``[D1, D2, D0 D1 D2]`` (a tensor, so that a new block size does not recompile)."""
+    B = lo.shape[1]
+    local = base_f.to(torch.int64).view(3, B, -1) - lo[:, :, None]
+    scene = torch.arange(B, device=base_f.device, dtype=torch.int64)[:, None]
+    return ((local[0] * dims[0] + local[1]) * dims[1] + local[2] + scene * dims[2]).view(-1)
 
 
 def polar_fixed(Ft: Tensor, stop: float, n_iter: int = NEWTON_ITERS) -> tuple[Tensor, Tensor]:
@@ -104,7 +123,7 @@ def polar_fixed(Ft: Tensor, stop: float, n_iter: int = NEWTON_ITERS) -> tuple[Te
         inv_t = [c / det for c in cof]
         n_inv = sum(c * c for c in inv_t)
         n_x = sum(e * e for e in X)
-        gs = (n_inv / n_x).pow(0.25)
+        gs = torch.sqrt(torch.sqrt(n_inv / n_x))  # ^(1/4); pow is a slow libm call in the kernel
         X_new = [0.5 * (gs * e + c / gs) for e, c in zip(X, inv_t)]
         delta = (X_new[0] - X[0]).abs()
         for e, en in zip(X[1:], X_new[1:]):
@@ -192,14 +211,16 @@ def g2p_update(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Gather v(base + o) straight from the grid velocities, then paper eq. 8-11.
 
-    gv: (N, 3) grid velocities (node-major: a particle's 27 nodes are 9 runs of 3 neighbouring rows); offs: (27,)
-    int64 node-axis offset of each stencil node (``i S0 + j S1 + k``); lin: (P,) base node of each particle.
-    Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P), C, F (9, P).
+    gv: (N - 2, 9) runs of 3 neighbouring node velocities, row n = ``[v(n), v(n + 1), v(n + 2)]`` (the caller's
+    ``(N, 3)`` grid viewed with strides (3, 1), no copy: a particle's 27 nodes are 9 such runs); offs: (9,) int64
+    node-axis offset of each run (``i S0 + j S1``); lin: (P,) base node of each particle. One index per run instead of
+    one per node. Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P),
+    C, F (9, P).
     """
-    g = gv[lin[None, :] + offs[:, None]]  # (27, P, 3): indirect loads fused into the sums below by inductor
+    g = gv[lin[None, :] + offs[:, None]]  # (9, P, 9): indirect loads fused into the sums below by inductor
     S = []  # S[c] = [sum_o w v_c, sum_o w v_c o_i, ... o_j, ... o_k]
     for c in range(3):
-        t = [w[o] * g[o, :, c] for o in range(27)]
+        t = [w[o] * g[o // 3, :, 3 * (o % 3) + c] for o in range(27)]  # o = (i, j, k): run 3 i + j, node k
         row = [sum(t)]
         for ax in range(3):
             row.append(
@@ -227,9 +248,10 @@ def g2p_update(
 # then emits scalar (unvectorized) loops with symbolic strides.
 _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "stencil": (1,),
+    "index": (1, 1),
     "polar": (1,),
     "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
-    "sums": (0,),
+    "grid": (0, None, None, 0, 1),
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
 }
 
@@ -240,8 +262,9 @@ _OPTIONS = {"assert_indirect_indexing": False}
 
 
 class CompiledKernels:
-    """The four functions above wrapped in ``torch.compile`` with dynamic particle / node counts (they vary from step
-    to step and press to press; the 3x3 sizes stay static).
+    """The per-particle functions above and :func:`tvrecon.sim.mpm_compiled_grid.grid_collide` wrapped in
+    ``torch.compile`` with dynamic particle / node counts (they vary from step to step and press to press; the 3x3
+    sizes stay static).
 
     ``kernels(name, *args)`` calls one; the first failure (no C++ compiler, an inductor error) is logged, warned once,
     marks the kernels failed (:func:`compiled_kernels` then returns None) and raises :class:`CompileFailed` so that
@@ -251,13 +274,16 @@ class CompiledKernels:
     failed = False
 
     def __init__(self) -> None:
+        from .mpm_compiled_grid import grid_collide  # imports node_sums from here
+
         self._fns: dict[str, Callable] = {
             name: torch.compile(f, options=_OPTIONS)
             for name, f in (
                 ("stencil", stencil_weights),
+                ("index", block_index),
                 ("polar", polar_fixed),
                 ("p2g", p2g_contrib),
-                ("sums", node_sums),
+                ("grid", grid_collide),
                 ("g2p", g2p_update),
             )
         }

@@ -4,14 +4,17 @@ or ``TVRECON_COMPILE=1``; kernels in :mod:`.mpm_compiled`).
 Same order as :meth:`tvrecon.sim.mpm.MLSMPM._step` (P2G, grid update, G2P: paper eq. 5-11). The scatter differs in
 layout only: each particle's 108 contributions are one contiguous row of a node-major ``(N, 108)`` table
 (``index_add_`` along the nodes, ~1.9x faster than the eager step's ``(108, N)`` columns), whose 27 offsets are
-then summed by the compiled ``node_sums`` (another summation order: equal to round-off). G2P gathers the 27 node
-velocities from the ``(N, 3)`` grid inside its kernel. The block layout and the grid update (colliders) are the
-eager code. The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused
-step reads it without a copy.
+then summed by the compiled ``grid_collide`` (another summation order: equal to round-off), which also does the grid
+update and the colliders (their fields looked up only when a block moves, ``mpm_compiled_grid.ColliderFields``).
+G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
+node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
+The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
+without a copy.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -20,7 +23,8 @@ from torch import Tensor
 
 from .colliders import Collider
 from .materials import polar_decomposition
-from .mpm_grid import Stencil, block_layout
+from .mpm_compiled_grid import ColliderFields
+from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
@@ -46,6 +50,24 @@ def _cf_state(state: ParticleState, xt: Tensor, vt: Tensor, Ct: Tensor, Ft: Tens
     )
 
 
+def _grid_update(solver: MLSMPM, G: Tensor, colliders: list[Collider | None], st: Stencil) -> Tensor:
+    """Node sums, grid velocity and colliders in one compiled kernel (``grid_collide``); sets the solver's
+    ``last_force`` and last transfer as ``MLSMPM._grid_update`` does. Returns the (N, 3) node velocities."""
+    if solver._fields is None:
+        solver._fields = ColliderFields()
+    D = st.D
+    sdf, nrm = solver._fields(colliders, st.lo, D, solver.dx, G.dtype, G.device)
+    damp = math.exp(-solver.cfg.damping * solver.dt) if solver.cfg.damping > 0 else 1.0
+    S0, S1 = D[1] * D[2], D[2]
+    gv, gm, node_force, force, vmax = solver._kernels(
+        "grid", G, S0, S1, sdf, nrm, len(colliders), solver.dt, float(solver.cfg.friction), damp
+    )
+    solver.last_force = force
+    solver._last_transfer = Transfer(st.lin, st.w, gm, node_force, (S0, S1))
+    check_grid_speed(float(vmax), solver.dt, solver.dx)
+    return gv
+
+
 def fused_step(
     solver: MLSMPM,
     state: ParticleState,
@@ -65,10 +87,18 @@ def fused_step(
     dx, inv_dx, dt = solver.dx, solver.inv_dx, solver.dt
     # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
     xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
-    base_t, fx, w = k("stencil", xt, inv_dx)
-    lo, lin, D = block_layout(base_t.T, state.batch, B, block)
+    if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index compiled
+        base_t, fx, w, lo_f, hi_f = k("stencil", xt, inv_dx, B)
+        D = block_dims(lo_f.T, hi_f.T, B)
+        lo_t = lo_f.to(torch.int64)  # (3, B)
+        dims = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
+        lin = k("index", base_t, lo_t, dims)
+        lo = lo_t.T
+    else:
+        base_t, fx, w, _, _ = k("stencil", xt, inv_dx, 1)
+        lo, lin, D = block_layout(base_t.T, state.batch, B, block)
     n_nodes = B * D[0] * D[1] * D[2]
-    st = Stencil(fx.T, w, lo, lin, D, n_nodes, solver._chunk(P))
+    st = Stencil(fx.T, w, lo, lin, D, n_nodes, solver.compiled_chunk_size if solver.compiled_chunk_size > 0 else P)
 
     stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
     Rt, converged = k("polar", Ft, stop)
@@ -86,11 +116,10 @@ def fused_step(
             w[:, sl], mu, lam, dt, dx, inv_dx,
         )  # fmt: skip
         G.index_add_(0, lin[sl], contrib)  # one contiguous row of 108 per particle
-    grid = k("sums", G, S0, S1)  # (4, N)
-
-    gv = solver._grid_update(grid, colliders, st).contiguous()  # (N, 3)
+    gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
-    offs = o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2]  # (27,) their node-axis offsets
+    offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
+    runs = gv.as_strided((gv.shape[0] - 2, 9), (3, 1))  # row n: nodes n, n+1, n+2 (a view; base + 2 S0 + 2 S1 < N - 2)
     if hand_velocity is None:
         hvt = None
     elif hand_velocity.dim() == 1:
@@ -99,5 +128,5 @@ def fused_step(
         hvt = hand_velocity.T.contiguous()
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
-    xn, vn, Cn, Fn = k("g2p", gv, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
+    xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return _cf_state(state, xn, vn, Cn, Fn)

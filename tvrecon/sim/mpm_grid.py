@@ -20,7 +20,9 @@ __all__ = [
     "MAX_GRID_NODES",
     "Stencil",
     "Transfer",
+    "block_dims",
     "block_layout",
+    "check_grid_speed",
     "share_node_force",
     "shift_nodes",
     "stencil_offsets",
@@ -66,6 +68,19 @@ def shift_nodes(t: Tensor, s: int) -> Tensor:
     return torch.nn.functional.pad(t, (s, -s))
 
 
+def block_dims(lo_f: Tensor, hi_f: Tensor, B: int) -> list[int]:
+    """Block dims [3] (nodes per axis, the same for every scene) from the per-scene bounds of the base nodes, lo_f and
+    hi_f (B, 3) (float, whole numbers). Raises FloatingPointError on a non-finite or exploded state."""
+    ext = hi_f - lo_f + 3.0  # nodes per axis: base .. base + 2
+    bounds = torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)]).tolist()
+    if not all(math.isfinite(b) for b in bounds):
+        raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {FIX_HINT}")
+    D = [int(d) for d in bounds[:3]]
+    if B * D[0] * D[1] * D[2] > MAX_GRID_NODES:
+        raise FloatingPointError(f"MPM state exploded: particles spread over {D} grid cells per scene; {FIX_HINT}")
+    return D
+
+
 def block_layout(
     base_f: Tensor, batch: Tensor | None, B: int, block: int | None = None
 ) -> tuple[Tensor, Tensor, list[int]]:
@@ -87,14 +102,8 @@ def block_layout(
         idx = batch[:, None].expand(-1, 3)
         lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
         hi_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amax", include_self=False)
-    ext = hi_f - lo_f + 3.0  # nodes per axis: base .. base + 2
-    bounds = torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)]).tolist()
-    if not all(math.isfinite(b) for b in bounds):
-        raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {FIX_HINT}")
-    D = [int(d) for d in bounds[:3]]
+    D = block_dims(lo_f, hi_f, B)
     nb = D[0] * D[1] * D[2]
-    if B * nb > MAX_GRID_NODES:
-        raise FloatingPointError(f"MPM state exploded: particles spread over {D} grid cells per scene; {FIX_HINT}")
     lo = lo_f.to(torch.int64)  # (B, 3)
     base = base_f.to(torch.int64)
     if batch is not None and block is not None:
@@ -108,6 +117,16 @@ def block_layout(
         else:
             lin = lin + batch * nb
     return lo, lin, D
+
+
+def check_grid_speed(vmax: float, dt: float, dx: float) -> None:
+    """Raise FloatingPointError when the fastest grid node (``vmax``, its largest velocity component) would move more
+    than one cell in a step, or is NaN."""
+    if not vmax * dt <= dx:  # also catches NaN
+        raise FloatingPointError(
+            f"MPM state exploded (grid speed {vmax:.3g} moves {vmax * dt / dx:.3g} cells per step, NaN or > 1): "
+            f"{FIX_HINT}"
+        )
 
 
 def share_node_force(transfer: Transfer, mass: Tensor, o_int: Tensor) -> Tensor:

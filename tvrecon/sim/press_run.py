@@ -212,9 +212,13 @@ class PressLoop:
             signs = [touches[t].hand_sign() for t in active]
             sign_t = torch.tensor(signs, device=dev)  # (B,)
             v_touch = sign_t[:, None] * speed_t * down  # (B, 3)
-            hv = v_touch.repeat_interleave(P, dim=0)  # (B * P, 3)
+            # one scene without autograd: the (3,) hand velocity broadcasts over the particles (the same values, no
+            # (P, 3) copy per step; with autograd the gradients' summation order is kept as it was)
+            one = B == 1 and not (v_touch.requires_grad or alpha1.requires_grad)
+            hv = v_touch[0] if one else v_touch.repeat_interleave(P, dim=0)  # (3,) or (B * P, 3)
+            alpha = alpha1 if one else alpha1.repeat(B)
             state = solver.step(
-                state, collider=[touches[t].place.collider for t in active], hand_velocity=hv, alpha=alpha1.repeat(B)
+                state, collider=[touches[t].place.collider for t in active], hand_velocity=hv, alpha=alpha
             )
             xb = state.x.view(B, P, 3)
             if not bool(torch.isfinite(xb[:, :HW]).all()):
