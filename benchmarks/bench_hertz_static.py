@@ -59,6 +59,7 @@ def rows(r: SlabPress, holds: tuple[float, ...], d_cmp: float) -> list[dict]:
                 "offset": off,
                 "depths": d.tolist(),
                 "force": hf[b].tolist(),
+                "a_holds": ha[b].tolist(),
                 "force_exponent": float(np.polyfit(np.log(d), np.log(hf[b]), 1)[0]),
                 "radius_exponent": float(np.polyfit(np.log(d), np.log(ha[b]), 1)[0]),
                 "area_radius_exponent": float(np.polyfit(np.log(d), np.log(har[b]), 1)[0]),
@@ -104,19 +105,20 @@ def plot(r: SlabPress, res: dict, path: Path) -> None:
 
     R, dx, h = r.R, r.dx, r.thick
     unit = E0 / (1 - NU0**2) * dx**2  # forces as F / (E* dx^2)
-    dd = np.linspace(0.05, float(r.depth.max()), 200)
+    dd = np.linspace(0.05, float(np.nanmax(r.depth)), 200)
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
     for b, row in enumerate(res["rows"]):
         m = r.depth[b] > 0.05
         ax[0].loglog(r.depth[b][m], r.force[b][m] / unit, lw=0.6, alpha=0.5)
         ax[0].loglog(row["depths"], np.array(row["force"]) / unit, "o", label=f"at rest, apex +{row['offset']:g}")
         ax[1].plot(r.depth[b], r.radius[b], lw=0.6, alpha=0.5)
+        ax[1].plot(row["depths"], row["a_holds"], "o")
     ax[0].loglog(dd, hertz_force(E0, NU0, R * dx, dd * dx) / unit, "k:", lw=2, label="Hertz (half-space)")
     ax[0].loglog(dd, winkler_force(E0, NU0, R * dx, h * dx, dd * dx) / unit, "r:", lw=2, label=f"thin layer h={h:g}")
     ax[1].plot(dd, hertz_radius(R, dd), "k:", lw=2, label="Hertz sqrt(R d)")
     ax[1].plot(dd, winkler_radius(R, dd), "r:", lw=2, label="thin layer sqrt(2 R d)")
     ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title="force: every step (lines), at rest (dots)")
-    ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius, every step")
+    ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius", xlim=(-0.2, None))
     ax[0].legend(fontsize=7)
     ax[1].legend(fontsize=7)
     fig.tight_layout()
