@@ -7,6 +7,7 @@ Scenes (lengths in grid cells unless said otherwise, domain units = cells * dx):
   hand (alpha = 0, heavy mount, as the default ``clamped`` pad) moving down at a constant speed onto a rigid sphere
   (:class:`SphereCollider`) whose apex sits ``offset`` cells above a node plane: the classic Hertz set-up (a rigid
   sphere on an elastic layer bonded to a rigid back). Per step: geometric depth, normal force, contact radius.
+  With ``holds`` the hand stops at those depths and the pad relaxes (:mod:`.quasi_static`): the values at rest.
 - :func:`free_slab_impact`: a free slab thrown at a sphere (no hand): momentum change vs collider impulse.
 - :func:`free_oscillation`: a free slab in its first compression mode (no collider, no hand): elastic + kinetic
   energy over time.
@@ -97,7 +98,7 @@ def slab_lattice(width: float, thick: float, spacing: float = 0.5) -> Tensor:
 class SlabPress:
     """Per-step record of :func:`slab_press` (one entry per scene, arrays over steps).
 
-    depth: (S,) geometric depth in cells: hand travel minus the start gap between the rest contact layer (particle
+    depth: (B, S) geometric depth in cells: hand travel minus the start gap between the rest contact layer (particle
         centres) and the sphere's apex. force: (B, S) normal force on the pad (simulation units). radius: (B, S)
         contact radius in cells from the pressure's second moment, ``a = sqrt(2.5 sum f r^2 / sum f)`` over the
         collider's node forces (exact for a Hertz pressure ``p0 sqrt(1 - r^2 / a^2)``; the particle forces with
