@@ -7,6 +7,7 @@ Scenes (lengths in grid cells unless said otherwise, domain units = cells * dx):
   hand (alpha = 0, heavy mount, as the default ``clamped`` pad) moving down at a constant speed onto a rigid sphere
   (:class:`SphereCollider`) whose apex sits ``offset`` cells above a node plane: the classic Hertz set-up (a rigid
   sphere on an elastic layer bonded to a rigid back). Per step: geometric depth, normal force, contact radius.
+  With ``holds`` the hand stops at those depths and the pad relaxes (:mod:`.quasi_static`): the values at rest.
 - :func:`free_slab_impact`: a free slab thrown at a sphere (no hand): momentum change vs collider impulse.
 - :func:`free_oscillation`: a free slab in its first compression mode (no collider, no hand): elastic + kinetic
   energy over time.
@@ -33,6 +34,7 @@ from torch import Tensor
 from .colliders import SphereCollider
 from .materials import fixed_corotated_energy, lame_parameters, p_wave_speed
 from .mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
+from .quasi_static import hand_schedule, relaxation_damping, relaxation_steps
 
 __all__ = [
     "SlabPress",
@@ -96,13 +98,14 @@ def slab_lattice(width: float, thick: float, spacing: float = 0.5) -> Tensor:
 class SlabPress:
     """Per-step record of :func:`slab_press` (one entry per scene, arrays over steps).
 
-    depth: (S,) geometric depth in cells: hand travel minus the start gap between the rest contact layer (particle
+    depth: (B, S) geometric depth in cells: hand travel minus the start gap between the rest contact layer (particle
         centres) and the sphere's apex. force: (B, S) normal force on the pad (simulation units). radius: (B, S)
         contact radius in cells from the pressure's second moment, ``a = sqrt(2.5 sum f r^2 / sum f)`` over the
         collider's node forces (exact for a Hertz pressure ``p0 sqrt(1 - r^2 / a^2)``; the particle forces with
         ``contact="particle"``). area_radius: (B, S) ``sqrt(A / pi)`` of the area A in contact, in cells: node columns
         with a collider force (1 cell^2 each), or contact-layer particles with one (spacing^2 each) with
-        ``contact="particle"``. offsets: the B apex offsets.
+        ``contact="particle"``. offsets: the B apex offsets. hold: (B, S) index of the hold each step belongs to
+        (-1 while the hand moves; :func:`tvrecon.sim.quasi_static.hand_schedule`).
     """
 
     depth: np.ndarray
@@ -117,6 +120,7 @@ class SlabPress:
     thick: float
     particles: int
     steps: int
+    hold: np.ndarray | None = None
 
 
 def slab_press(
@@ -135,13 +139,18 @@ def slab_press(
     spacing: float = 0.5,
     mount_mass: float = 100.0,
     contact: str = "grid",
+    holds: Sequence[float] = (),
+    hold_steps: int | None = None,
+    hold_damping: float | None = None,
 ) -> SlabPress:
     """Press a slab bonded to a rigid hand onto a rigid sphere, one scene per apex offset, batched.
 
     The contact layer rests 2.5 cells above node plane ``n_grid / 2`` (half-way between node planes, like the press
     of :mod:`tvrecon.sim.press_run`); the sphere's apex sits ``offset`` cells above that node plane, so the start gap
     is ``2.5 - offset`` cells (no node of the pad touches the sphere at the start). The hand moves down at ``speed``
-    (domain units / s; None -> ``speed_fraction`` times the P-wave speed) until ``max_depth``.
+    (domain units / s; None -> ``speed_fraction`` times the P-wave speed) until ``max_depth``. With ``holds`` it
+    stops at each of those depths for ``hold_steps`` steps (step-and-hold, :mod:`tvrecon.sim.quasi_static`; read the
+    static values with :func:`tvrecon.sim.quasi_static.hold_means`).
 
     Args:
         offsets: apex heights above the node plane, in cells (0 = on a node plane).
@@ -151,6 +160,11 @@ def slab_press(
         mount_mass: mass multiplier of the hand-driven back layer (the default clamped pad's 100).
         contact: ``MPMConfig.contact``: "grid" (node collider; radius from the node forces) or "particle"
             (particle-level contact; radius from the particle forces at the particles' positions).
+        holds: depths (cells) where each scene's hand stops for ``hold_steps`` steps (None ->
+            :func:`tvrecon.sim.quasi_static.relaxation_steps` of the layer at the CFL step). Empty: a constant-speed
+            press.
+        hold_damping: grid damping rate (1/s) while every scene holds (dynamic relaxation); None ->
+            :func:`tvrecon.sim.quasi_static.relaxation_damping` of the layer, 0 = none.
     """
     dx = 1.0 / n_grid
     cfg = MPMConfig(n_grid=n_grid, E=E, nu=nu, dt=dt, contact=contact)
@@ -175,13 +189,27 @@ def slab_press(
     colliders = [SphereCollider([0.5, 0.5, z_plane + (off - R) * dx], R * dx) for off in offsets]
     gaps = np.array([2.5 - off for off in offsets])
     step_cells = speed * solver.dt / dx
-    n_steps = int(math.ceil((float(gaps.max()) + max_depth) / step_cells))
+    if holds:
+        if hold_steps is None:
+            M = float(solver.lam) + 2.0 * float(solver.mu)
+            hold_steps = relaxation_steps(thick, p_wave_speed(E, nu, 1.0) * solver.dt / dx, float(solver.mu), M)
+        inc, hold = hand_schedule(gaps, step_cells, max_depth, holds, hold_steps)  # (B, S) cells per step
+        n_steps = inc.shape[1]
+        if hold_damping is None:
+            hold_damping = relaxation_damping(float(solver.mu), 1.0, thick * dx)
+        relax = replace(cfg, damping=float(hold_damping))
+    else:
+        n_steps = int(math.ceil((float(gaps.max()) + max_depth) / step_cells))
+        inc, hold = np.full((B, n_steps), step_cells), np.full((B, n_steps), -1)
     centre_cells = torch.tensor([0.5, 0.5]) / dx
     forces = np.zeros((B, n_steps))
     radii = np.zeros((B, n_steps))
     area_radii = np.zeros((B, n_steps))
-    travel = np.arange(1, n_steps + 1) * step_cells
     for s in range(n_steps):
+        if holds:  # (B * P, 3): each scene's hand at its own speed this step
+            hand = torch.zeros(B * P, 3)
+            hand[:, 2] = -torch.from_numpy(inc[:, s] * dx / solver.dt).to(torch.float32).repeat_interleave(P)
+            solver.cfg = relax if bool((inc[:, s] == 0).all()) else cfg  # damped only while every hand holds
         base = torch.floor(state.x / dx - 0.5)
         lo = base.view(B, P, 3).amin(1)  # (B, 3) block origins, as mpm_grid.block_layout
         D = [int(v) for v in (base.view(B, P, 3).amax(1) - lo + 3).amax(0).tolist()]
@@ -205,7 +233,7 @@ def slab_press(
         radii[:, s] = torch.where(tot > 0, (2.5 * m2 / torch.where(tot > 0, tot, 1.0)).clamp(min=0).sqrt(), 0).numpy()
         area_radii[:, s] = ((fz > 0).sum((1, 2)).to(torch.float64) / math.pi).sqrt().numpy()  # node columns, 1 cell^2
     # depth per scene differs by its gap: record travel and shift per scene to a common depth axis
-    depth = travel[None, :] - gaps[:, None]  # (B, S)
+    depth = np.cumsum(inc, 1) - gaps[:, None]  # (B, S)
     return SlabPress(
         depth=depth,
         force=forces,
@@ -219,6 +247,7 @@ def slab_press(
         thick=thick,
         particles=P * B,
         steps=n_steps,
+        hold=hold,
     )
 
 
