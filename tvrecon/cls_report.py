@@ -170,7 +170,7 @@ def plot_accuracy_by_touches(results: Iterable[Mapping[str, Any]], path: str | P
             groups.setdefault(str(r["name"]), []).append(r)
     if not groups:
         return None
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(figsize=(9.0, 4.2))
     chance = None
     for i, (name, runs) in enumerate(groups.items()):
         colour = f"C{i % 10}"
@@ -192,7 +192,7 @@ def plot_accuracy_by_touches(results: Iterable[Mapping[str, Any]], path: str | P
     ax.set_ylabel("test accuracy (%)")
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: no curve hidden
     ax.set_title("Tactile classification by number of touches", fontsize=10)
     return save_and_close(fig, path, dpi=110)
 
