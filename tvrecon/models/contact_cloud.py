@@ -22,27 +22,10 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.models.backbone import load_resnet18
+from tvrecon.models.set_pool import masked_max_mean, real_touches
 from tvrecon.models.touch_geometry import select_patch_points
 
-__all__ = ["ContactCloudClassifier", "masked_max_mean"]
-
-
-def masked_max_mean(feats: Tensor, mask: Tensor) -> Tensor:
-    """Max and mean of the features of the real elements (zeros for a row with none).
-
-    Args:
-        feats: (B, P, F) float.
-        mask: (B, P) bool, True for a real element.
-
-    Returns:
-        (B, 2F) float: [max, mean].
-    """
-    m = mask.to(feats.dtype)[..., None]  # (B, P, 1)
-    count = m.sum(1)  # (B, 1)
-    mean = (feats * m).sum(1) / count.clamp_min(1.0)
-    peak = feats.masked_fill(~mask[..., None], float("-inf")).amax(1)
-    peak = torch.where(count > 0, peak, torch.zeros_like(peak))
-    return torch.cat([peak, mean], dim=1)
+__all__ = ["ContactCloudClassifier"]
 
 
 def _block(inputs: int, outputs: int) -> list[nn.Module]:
@@ -127,12 +110,7 @@ class ContactCloudClassifier(nn.Module):
             raise ValueError(f"got N={N} touches but the classifier takes at most num_touches={self.num_touches}")
         if tactile.dim() != 5 or tactile.shape[:3] != (B, N, 3):
             raise ValueError(f"tactile must have shape ({B}, {N}, 3, h, w), got {tuple(tactile.shape)}")
-        if touch_mask is None:
-            touch_mask = torch.ones(B, N, dtype=torch.bool, device=patch_points.device)
-        elif touch_mask.shape != (B, N):
-            raise ValueError(f"touch_mask must have shape (B, N) = ({B}, {N}), got {tuple(touch_mask.shape)}")
-        if bool((touch_mask.sum(1) == 0).any()):
-            raise ValueError("every sample needs at least one real touch (touch_mask has an all-False row)")
+        touch_mask = real_touches(touch_mask, B, N, patch_points.device)
         cloud = select_patch_points(patch_points, patch_normals, patch_mask, touch_mask, self.points_per_touch)
         m = cloud.mask.to(cloud.points.dtype)[..., None]  # (B, P, 1)
         centre = (cloud.points * m).sum(1, keepdim=True) / m.sum(1, keepdim=True).clamp_min(1.0)  # (B, 1, 3)

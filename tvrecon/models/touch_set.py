@@ -14,6 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.models.backbone import load_resnet18
+from tvrecon.models.set_pool import masked_max_mean, real_touches
 
 __all__ = ["TouchSetClassifier"]
 
@@ -59,14 +60,7 @@ class TouchSetClassifier(nn.Module):
         B, N = tactile.shape[:2]
         if N > self.num_touches:
             raise ValueError(f"got N={N} touches but the classifier takes at most num_touches={self.num_touches}")
-        if touch_mask is None:
-            touch_mask = torch.ones(B, N, dtype=torch.bool, device=tactile.device)
-        elif touch_mask.shape != (B, N):
-            raise ValueError(f"touch_mask must have shape (B, N) = ({B}, {N}), got {tuple(touch_mask.shape)}")
-        if bool((touch_mask.sum(1) == 0).any()):
-            raise ValueError("every sample needs at least one real touch (touch_mask has an all-False row)")
+        touch_mask = real_touches(touch_mask, B, N, tactile.device)
         feats = self.trunk(tactile.flatten(0, 1)).view(B, N, -1)  # (B, N, F)
-        m = touch_mask.to(feats.dtype)[..., None]  # (B, N, 1)
-        mean = (feats * m).sum(1) / m.sum(1)  # (B, F)
-        peak = feats.masked_fill(~touch_mask[..., None], float("-inf")).amax(1)  # (B, F)
-        return self.head(torch.cat([mean, peak], dim=1))
+        peak, mean = masked_max_mean(feats, touch_mask).chunk(2, dim=1)  # (B, F) each
+        return self.head(torch.cat([mean, peak], dim=1))  # [mean, max]: the order its checkpoints were trained with
