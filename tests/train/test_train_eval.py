@@ -35,6 +35,12 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         train, test = datamodule.make_dataset("train"), datamodule.make_dataset("test")
         assert train.redraw_touches and not test.redraw_touches  # fresh touches per training epoch only
         assert not train.rotate_touches  # the orientation augmentation is off until measured to help
+        if experiment.startswith("classify_contact"):  # beyond the paper: the touches as 3D contact patches
+            assert type(model.net).__name__ == "ContactCloudClassifier" and model.controls == ["other"]
+            assert train.patches and test.patches and train.rotate_pose and not test.redraw_touches
+            assert "patch_points" in model.touch_inputs
+            assert model.net.points_per_touch == (1 if experiment == "classify_contact_point" else 64)
+            assert (model.net.trunk is not None) == (experiment == "classify_contact_cloud_images")
         return
     assert type(datamodule).__name__ == "ReconstructionDataModule"
     net = model.net
