@@ -8,9 +8,9 @@ atomic adds into a dense ``n^3`` grid, fixed-corotated stress with ``R = U V^T``
 thread (``cpu_max_num_threads=1``). Three Taichi variants run: ``dense`` clears and updates all 128^3 nodes every
 step (the textbook kernel); ``box`` only the nodes of a fixed box the pad can reach (its initial bounds, the hand's
 travel and a margin: our solver also works on the particles' bounding block); ``box serial`` also serializes every
-loop (``ti.loop_config(serialize=True)``), which lets Taichi make the P2G atomic adds plain adds: the fastest of the
-three on one thread, and the one the ratios should be read against. Our solver runs through its public contract,
-eager and ``compile=True``, torch on one thread.
+loop (``ti.loop_config(serialize=True)``; presumably Taichi then demotes the P2G atomic adds to plain adds, not
+checked in the generated code): the fastest of the three on one thread, and the one to read the ratios against.
+Our solver runs through its public contract, eager and ``compile=True``, torch on one thread.
 
 Compile time is excluded (a warm-up run of each: 3 steps, all ``--steps`` for the compiled solver, whose grid kernel
 recompiles once when the block strides first change); then ``--repeats`` rounds time all five, rotating which goes
