@@ -56,3 +56,15 @@ def test_surface_distance_equals_the_plain_query_bit_for_bit():
     assert np.array_equal(dist, ref)
     assert (ref < cap).any() and (ref == cap).any()  # both kinds of node occur
     assert surface_distance(nodes, lo_i, dims, None, dx, cap)[0].tolist() == [cap] * len(nodes)
+
+
+def test_surface_distance_with_samples_but_no_node_within_the_cap():
+    dx, cap = 1.0 / 128, 4.0 / 128
+    lo_i, dims = np.array([10, 10, 10]), np.array([5, 5, 5])
+    nodes = _lattice(lo_i, dims, dx)
+    c = (lo_i - 3.8) * dx  # a small triangle in the corner of the grown box: 3.8 * sqrt(3) cells from the nearest node
+    tri = trimesh.Trimesh(vertices=[c, c + [0.2 * dx, 0, 0], c + [0, 0.2 * dx, 0]], faces=[[0, 1, 2]])
+    surface = clip_to_box(tri, lo_i * dx - cap, (lo_i + dims - 1) * dx + cap)
+    dist, n = surface_distance(nodes, lo_i, dims, surface, dx, cap)
+    assert n > 0 and not maybe_near(surface_samples(surface, dx / 2)[0], lo_i, dims, dx, cap).any()
+    assert np.array_equal(dist, _plain(nodes, surface, dx, cap)) and (dist == cap).all()

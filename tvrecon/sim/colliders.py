@@ -275,7 +275,7 @@ class MeshCollider:
       ``OPEN_SHELL_CELLS`` (sdf minus ``offset``), so a wall seen from both sides becomes a shell 2 cells thick with
       grid nodes inside it (a body coming from either side is stopped while it stays within the shell).
 
-    Unsigned distance: nearest of surface samples (spacing dx/2,
+    Unsigned distance (:mod:`.mesh_distance`): nearest of surface samples (spacing dx/2,
     on the surface clipped to the region box grown by the 4-cell distance cap; scipy cKDTree), refined
     to the exact distance to the faces of the 4 nearest samples. Normal: central-difference gradient of the node sdf.
 
