@@ -12,7 +12,6 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import torch
 import trimesh
-from scipy.spatial import cKDTree
 from torch import Tensor
 
 __all__ = [
@@ -276,7 +275,7 @@ class MeshCollider:
       ``OPEN_SHELL_CELLS`` (sdf minus ``offset``), so a wall seen from both sides becomes a shell 2 cells thick with
       grid nodes inside it (a body coming from either side is stopped while it stays within the shell).
 
-    Unsigned distance: nearest of surface samples (spacing dx/2,
+    Unsigned distance (:mod:`.mesh_distance`): nearest of surface samples (spacing dx/2,
     on the surface clipped to the region box grown by the 4-cell distance cap; scipy cKDTree), refined
     to the exact distance to the faces of the 4 nearest samples. Normal: central-difference gradient of the node sdf.
 
@@ -307,7 +306,8 @@ class MeshCollider:
     ) -> None:
         from tvrecon.geometry import check_mesh
 
-        from .voxelize import carve_points, surface_samples
+        from .mesh_distance import surface_distance
+        from .voxelize import carve_points
 
         check_mesh(mesh)
         if n_grid < 4:
@@ -332,21 +332,7 @@ class MeshCollider:
         # sample count follows the region, not the length of the faces crossing it
         margin = 4 * dx
         clipped = clip_to_box(mesh, lo_i * dx - margin, hi_i * dx + margin)
-        self.n_samples = 0
-        dist = np.full(len(nodes), margin)  # no surface near the region: "far"
-        if clipped is not None:
-            pts, fid = surface_samples(clipped, spacing=dx / 2)
-            self.n_samples = len(pts)
-            # nodes farther than the margin only need "far": the bound keeps the query fast
-            sd, si = cKDTree(pts).query(nodes, k=4, distance_upper_bound=margin)
-            close = np.flatnonzero(np.isfinite(sd[:, 0]))
-            # exact point-triangle distance to the faces of the 4 nearest samples (the samples only find them)
-            cand = fid[np.minimum(si[close], len(pts) - 1)]  # (C, 4)
-            ok = np.isfinite(sd[close])
-            tris = np.asarray(clipped.triangles)[cand.reshape(-1)]
-            q = np.repeat(nodes[close], 4, axis=0)
-            exact = np.linalg.norm(trimesh.triangles.closest_point(tris, q) - q, axis=1).reshape(-1, 4)
-            dist[close] = np.minimum(np.where(ok, exact, np.inf).min(1), margin)
+        dist, self.n_samples = surface_distance(nodes, lo_i, dims, clipped, dx, margin)
         self.offset = 0.0
         if mesh.is_watertight:
             sdf = np.where(mesh.contains(nodes), -dist, dist)
