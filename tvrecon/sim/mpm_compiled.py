@@ -15,6 +15,7 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
 - :func:`p2g_contrib`: fixed-corotated Kirchhoff stress (paper eq. 4), the affine momentum matrix of eq. 6 and each
   particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` as one ``(P, 108)`` row per particle (the
   ``index_add_`` scatter stays eager);
+- :func:`p2g_chunk`: :func:`p2g_contrib` of one chunk of particles, sliced inside the compiled code;
 - :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid; compiled as
   part of :func:`tvrecon.sim.mpm_compiled_grid.grid_collide`, the grid update and colliders);
 - :func:`g2p_update`: the gather of the 27 node velocities straight from the grid, as 9 runs of 3 neighbouring nodes
@@ -44,6 +45,7 @@ __all__ = [
     "block_index",
     "polar_fixed",
     "p2g_contrib",
+    "p2g_chunk",
     "node_sums",
     "g2p_update",
 ]
@@ -175,6 +177,32 @@ def p2g_contrib(
     return torch.cat([(w * m)[None], mom], 0).reshape(108, -1).T.contiguous()
 
 
+def p2g_chunk(
+    Ft: Tensor,
+    Rt: Tensor,
+    Ct: Tensor,
+    vt: Tensor,
+    fx: Tensor,
+    m: Tensor,
+    vol: Tensor,
+    w: Tensor,
+    s0: int,
+    n: int,
+    mu: float,
+    lam: float,
+    dt: float,
+    dx: float,
+    inv_dx: float,
+) -> Tensor:
+    """:func:`p2g_contrib` of particles ``s0 .. s0 + n`` of the whole-step tensors (shapes as there, P columns):
+    the (n, 108) rows. The slicing is inside the compiled code, so that each chunk's call passes the same tensors
+    (with slices as arguments, the guards and wrappers of a call cost ~40 us more per chunk in a microbenchmark)."""
+    sl = slice(s0, s0 + n)
+    return p2g_contrib(
+        Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], m[sl], vol[sl], w[:, sl], mu, lam, dt, dx, inv_dx
+    )
+
+
 def node_sums(G: Tensor, S0: int, S1: int) -> Tensor:
     """The 27 stencil offsets of the scattered rows summed onto their nodes: (N, 108) -> (4, N) [m_i, (m v)_i].
 
@@ -250,7 +278,7 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "stencil": (1,),
     "index": (1, 1),
     "polar": (1,),
-    "p2g": (1, 1, 1, 1, 1, 0, 0, 1),
+    "p2g": (1, 1, 1, 1, 1, 0, 0, 1, None, None),
     "grid": (0, None, None, 0, 1),
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
 }
@@ -282,7 +310,7 @@ class CompiledKernels:
                 ("stencil", stencil_weights),
                 ("index", block_index),
                 ("polar", polar_fixed),
-                ("p2g", p2g_contrib),
+                ("p2g", p2g_chunk),
                 ("grid", grid_collide),
                 ("g2p", g2p_update),
             )

@@ -110,12 +110,9 @@ def fused_step(
     G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
     chunk = st.chunk
     for s0 in range(0, P, chunk):
-        sl = slice(s0, s0 + chunk)
-        contrib = k(
-            "p2g", Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], state.mass[sl], state.volume[sl],
-            w[:, sl], mu, lam, dt, dx, inv_dx,
-        )  # fmt: skip
-        G.index_add_(0, lin[sl], contrib)  # one contiguous row of 108 per particle
+        n = min(chunk, P - s0)
+        contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
+        G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
     gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
