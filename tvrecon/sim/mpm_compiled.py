@@ -13,9 +13,8 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
   the tolerance, as in the eager loop); it also returns whether every particle converged, else the caller falls
   back to the eager iteration;
 - :func:`p2g_contrib`: fixed-corotated Kirchhoff stress (paper eq. 4), the affine momentum matrix of eq. 6 and each
-  particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` as one ``(P, 108)`` row per particle (the
-  ``index_add_`` scatter stays eager);
-- :func:`p2g_chunk`: :func:`p2g_contrib` of one chunk of particles, sliced inside the compiled code;
+  particle's 4 x 27 stencil contribution ``w [m, m v + A (x_i - x_p)]`` as one ``(n, 108)`` row per particle of
+  one chunk, sliced inside the compiled code (the ``index_add_`` scatter stays eager);
 - :func:`node_sums`: the 27 stencil offsets of the scattered rows summed onto their nodes (P2G's grid; compiled as
   part of :func:`tvrecon.sim.mpm_compiled_grid.grid_collide`, the grid update and colliders);
 - :func:`g2p_update`: the gather of the 27 node velocities straight from the grid, as 9 runs of 3 neighbouring nodes
@@ -45,7 +44,6 @@ __all__ = [
     "block_index",
     "polar_fixed",
     "p2g_contrib",
-    "p2g_chunk",
     "node_sums",
     "g2p_update",
 ]
@@ -144,19 +142,27 @@ def p2g_contrib(
     m: Tensor,
     vol: Tensor,
     w: Tensor,
+    s0: int,
+    n: int,
     mu: float,
     lam: float,
     dt: float,
     dx: float,
     inv_dx: float,
 ) -> Tensor:
-    """Per particle ``w_o [m, m v + A (o - fx) dx]`` for the 27 offsets o: the (P, 108) scatter rows of eq. 5-6
-    (particle-major, so that ``index_add_`` along the nodes adds one contiguous row per particle).
+    """Per particle ``w_o [m, m v + A (o - fx) dx]`` for the 27 offsets o: the (n, 108) scatter rows of eq. 5-6 of
+    particles ``s0 .. s0 + n`` (particle-major, so that ``index_add_`` along the nodes adds one contiguous row per
+    particle).
 
-    Channel-first inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,), w (27, P).
+    Channel-first whole-step inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,), w (27, P). The chunk is sliced
+    here, inside the compiled code, so that each chunk's call passes the same tensors (with slices as arguments, the
+    guards and wrappers of a call cost ~40 us more per chunk in a microbenchmark).
     ``A = m C - (4 dt V0 / dx^2) tau`` with the fixed-corotated Kirchhoff stress
     ``tau = 2 mu (F - R) F^T + lam (J - 1) J I`` (rows c = mass, momentum x, y, z; then offset o, as the eager P2G).
     """
+    sl = slice(s0, s0 + n)
+    Ft, Rt, Ct, vt, fx, w = Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], w[:, sl]
+    m, vol = m[sl], vol[sl]
     Fr, Rr, Cr = Ft.unbind(0), Rt.unbind(0), Ct.unbind(0)
     cof = _cof(Fr)
     J = Fr[0] * cof[0] + Fr[1] * cof[1] + Fr[2] * cof[2]
@@ -175,32 +181,6 @@ def p2g_contrib(
     # as broadcast tensors, not 108 stacked rows: inductor then writes the transposed rows in vectorized tiles
     # (2x faster than a 108-way stack, same values)
     return torch.cat([(w * m)[None], mom], 0).reshape(108, -1).T.contiguous()
-
-
-def p2g_chunk(
-    Ft: Tensor,
-    Rt: Tensor,
-    Ct: Tensor,
-    vt: Tensor,
-    fx: Tensor,
-    m: Tensor,
-    vol: Tensor,
-    w: Tensor,
-    s0: int,
-    n: int,
-    mu: float,
-    lam: float,
-    dt: float,
-    dx: float,
-    inv_dx: float,
-) -> Tensor:
-    """:func:`p2g_contrib` of particles ``s0 .. s0 + n`` of the whole-step tensors (shapes as there, P columns):
-    the (n, 108) rows. The slicing is inside the compiled code, so that each chunk's call passes the same tensors
-    (with slices as arguments, the guards and wrappers of a call cost ~40 us more per chunk in a microbenchmark)."""
-    sl = slice(s0, s0 + n)
-    return p2g_contrib(
-        Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], m[sl], vol[sl], w[:, sl], mu, lam, dt, dx, inv_dx
-    )
 
 
 def node_sums(G: Tensor, S0: int, S1: int) -> Tensor:
@@ -310,7 +290,7 @@ class CompiledKernels:
                 ("stencil", stencil_weights),
                 ("index", block_index),
                 ("polar", polar_fixed),
-                ("p2g", p2g_chunk),
+                ("p2g", p2g_contrib),
                 ("grid", grid_collide),
                 ("g2p", g2p_update),
             )
