@@ -21,7 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from tvrecon.sim.quasi_static import hold_means
-from tvrecon.sim.validation import SlabPress, hertz_force, hertz_radius, slab_press, winkler_force, winkler_radius
+from tvrecon.sim.validation import (
+    SlabPress,
+    draw_contact_theory,
+    hertz_force,
+    hertz_radius,
+    slab_press,
+    winkler_force,
+    winkler_radius,
+)
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
 E0, NU0 = 3.0, 0.25
@@ -113,10 +121,7 @@ def plot(r: SlabPress, res: dict, path: Path) -> None:
         ax[0].loglog(row["depths"], np.array(row["force"]) / unit, "o", label=f"at rest, apex +{row['offset']:g}")
         ax[1].plot(r.depth[b], r.radius[b], lw=0.6, alpha=0.5)
         ax[1].plot(row["depths"], row["a_holds"], "o")
-    ax[0].loglog(dd, hertz_force(E0, NU0, R * dx, dd * dx) / unit, "k:", lw=2, label="Hertz (half-space)")
-    ax[0].loglog(dd, winkler_force(E0, NU0, R * dx, h * dx, dd * dx) / unit, "r:", lw=2, label=f"thin layer h={h:g}")
-    ax[1].plot(dd, hertz_radius(R, dd), "k:", lw=2, label="Hertz sqrt(R d)")
-    ax[1].plot(dd, winkler_radius(R, dd), "r:", lw=2, label="thin layer sqrt(2 R d)")
+    draw_contact_theory(ax, E0, NU0, R, h, dx, dd)
     ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title="force: every step (lines), at rest (dots)")
     ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius", xlim=(-0.2, None))
     ax[0].legend(fontsize=7)

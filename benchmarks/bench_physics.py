@@ -28,6 +28,7 @@ from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import SensorConfig
 from tvrecon.sim.stop_rules import DEFAULT_THRESHOLD
 from tvrecon.sim.validation import (
+    draw_contact_theory,
     free_oscillation,
     free_slab_impact,
     hertz_force,
@@ -294,10 +295,7 @@ def _plot_hertz(plt, H: dict, path: Path) -> None:
     m = thick.depth[0] > 0.05
     ax[0].loglog(thick.depth[0][m], thick.force[0][m] / unit, "k--", label=f"h={thick.thick:g} (half-space ref.)")
     ax[1].plot(thick.depth[0], thick.radius[0], "k--", label=f"h={thick.thick:g}")
-    ax[0].loglog(dd, hertz_force(E0, NU0, R * dx, dd * dx) / unit, "k:", lw=2, label="Hertz (half-space)")
-    ax[0].loglog(dd, winkler_force(E0, NU0, R * dx, h * dx, dd * dx) / unit, "r:", lw=2, label=f"thin layer h={h:g}")
-    ax[1].plot(dd, hertz_radius(R, dd), "k:", lw=2, label="Hertz sqrt(R d)")
-    ax[1].plot(dd, winkler_radius(R, dd), "r:", lw=2, label="thin layer sqrt(2 R d)")
+    draw_contact_theory(ax, E0, NU0, R, h, dx, dd)
     title = f"force, sphere R={R:g} cells, {H['contact']} contact"
     ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title=title, ylim=(1e-1, None))
     ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius", xlim=(-1.5, None))

@@ -119,3 +119,21 @@ def test_normal_image_converges_with_resolution():
     # measured 0.945 (normal) on these 16- and 32-pixel pads
     assert corr(imgs[32][2], fine[2]) > 0.9
     assert corr(imgs[32][:2], fine[:2]) > 0.7
+
+
+def test_contact_theory_curves_are_the_reference_formulas() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tvrecon.sim.validation import draw_contact_theory, hertz_force, winkler_radius
+
+    fig, ax = plt.subplots(1, 2)
+    d = np.linspace(0.1, 2.0, 5)
+    draw_contact_theory(ax, 3.0, 0.25, 8.0, 4.0, 0.01, d)
+    unit = 3.0 / (1 - 0.25**2) * 0.01**2
+    np.testing.assert_allclose(ax[0].lines[0].get_ydata(), hertz_force(3.0, 0.25, 0.08, d * 0.01) / unit)
+    np.testing.assert_allclose(ax[1].lines[1].get_ydata(), winkler_radius(8.0, d))
+    assert [ln.get_label() for ln in ax[0].lines] == ["Hertz (half-space)", "thin layer h=4"]
+    plt.close(fig)

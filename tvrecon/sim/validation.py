@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -44,6 +45,7 @@ __all__ = [
     "hertz_radius",
     "winkler_force",
     "winkler_radius",
+    "draw_contact_theory",
     "loglog_slope",
     "free_slab_impact",
     "free_oscillation",
@@ -72,6 +74,22 @@ def winkler_force(E: float, nu: float, R: float, h: float, d: np.ndarray | float
 def winkler_radius(R: float, d: np.ndarray | float) -> np.ndarray:
     """Thin-layer contact radius sqrt(2 R d) (the sphere's profile cut at depth d)."""
     return np.sqrt(2.0 * R * np.clip(np.asarray(d, dtype=np.float64), 0.0, None))
+
+
+def draw_contact_theory(ax: Any, E: float, nu: float, R: float, h: float, dx: float, depths: np.ndarray) -> None:
+    """Draw the Hertz and thin-layer references on a (force, radius) pair of matplotlib axes.
+
+    Args:
+        ax: two axes: forces as F / (E* dx^2) against depth, contact radius against depth (cells).
+        E, nu: the pad's material; R, h: sphere radius and layer thickness in cells; dx: cell size.
+        depths: (D,) depths in cells.
+    """
+    unit = E / (1 - nu**2) * dx**2
+    ax[0].loglog(depths, hertz_force(E, nu, R * dx, depths * dx) / unit, "k:", lw=2, label="Hertz (half-space)")
+    thin = winkler_force(E, nu, R * dx, h * dx, depths * dx) / unit
+    ax[0].loglog(depths, thin, "r:", lw=2, label=f"thin layer h={h:g}")
+    ax[1].plot(depths, hertz_radius(R, depths), "k:", lw=2, label="Hertz sqrt(R d)")
+    ax[1].plot(depths, winkler_radius(R, depths), "r:", lw=2, label="thin layer sqrt(2 R d)")
 
 
 def loglog_slope(x: np.ndarray, y: np.ndarray, lo: float, hi: float) -> float:
