@@ -20,6 +20,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from tvrecon.data.touch_select import set_loader_epoch
+from tvrecon.models.class_names import datamodule_class_names
 from tvrecon.models.optim import configure_optimizers
 
 __all__ = ["ClassificationModule", "gather_touches", "other_object_index", "select_touches", "touch_index"]
@@ -218,10 +219,7 @@ class ClassificationModule(L.LightningModule):
         self.log("val/acc", acc, prog_bar=True, batch_size=B, sync_dist=True)
 
     def _names(self, num_classes: int) -> list[str]:
-        names = self.class_names
-        if names is None:
-            library = getattr(getattr(self.trainer, "datamodule", None), "library", None)
-            names = [str(c) for c in getattr(library, "classes", [])]
+        names = self.class_names if self.class_names is not None else datamodule_class_names(self.trainer)
         return [names[i] if i < len(names) else f"class{i}" for i in range(num_classes)]
 
     def on_test_epoch_start(self) -> None:

@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.geometry import world_to_camera
+from tvrecon.models.class_names import datamodule_class_names
 from tvrecon.models.recon_batch import TOUCH_CONTROLS, control_batch, gt_to_camera, keep_first_touches
 from tvrecon.models.refine import refine_to_patches
 from tvrecon.viz import export_obj, render_mesh_comparison
@@ -94,10 +95,7 @@ class ReconstructionTestProtocol:
     def _names(self) -> list[str]:
         if self.class_names is not None:
             return self.class_names
-        dm = getattr(self.trainer, "datamodule", None)
-        library = getattr(dm, "library", None)
-        classes = getattr(library, "classes", None)
-        return [str(c) for c in classes] if classes is not None else []
+        return datamodule_class_names(self.trainer)
 
     def on_test_epoch_start(self) -> None:
         n_cls = max(len(self._names()), 1)
