@@ -287,6 +287,7 @@ class MeshCollider:
         n_views: carving views for open meshes (without ``from_above``).
         from_above: open meshes are solid behind their first surface seen from +z (see above); no effect on
             watertight meshes.
+        watertight: ``mesh.is_watertight`` when the caller knows it (a mesh with the same faces), else None.
 
     Attributes:
         offset: how far (domain units) the collider's surface lies outside the mesh's surface: ``OPEN_SHELL_CELLS *
@@ -303,6 +304,7 @@ class MeshCollider:
         device: str | torch.device = "cpu",
         n_views: int = 26,
         from_above: bool = False,
+        watertight: bool | None = None,
     ) -> None:
         from tvrecon.geometry import check_mesh
 
@@ -334,7 +336,7 @@ class MeshCollider:
         clipped = clip_to_box(mesh, lo_i * dx - margin, hi_i * dx + margin)
         dist, self.n_samples = surface_distance(nodes, lo_i, dims, clipped, dx, margin)
         self.offset = 0.0
-        if mesh.is_watertight:
+        if mesh.is_watertight if watertight is None else watertight:
             sdf = np.where(mesh.contains(nodes), -dist, dist)
         elif from_above:
             sdf = np.where(_below_first_hit(mesh, nodes, dims, top=hi_i[2] * dx + margin), -dist, dist)
