@@ -7,7 +7,8 @@
 both versions run side by side; each touch (classes ``first + stride * i`` of ``available_classes()``, seeded
 cone-policy touch, paper preset: 64x64x6 pad, n_grid 128) is pressed by both, alternating which goes first, on one
 thread, with ``compile=True`` unless ``--eager``. Prints per touch the CPU seconds, the old/new ratio and the reading
-differences (image in grid cells, relative force), then the median and total ratio. Used for each step of issue 13
+differences (image in grid cells, relative force; whether the whole reading is bit-identical: :func:`identical`), then
+the median and total ratio. Used for each step of issue 13
 step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine.
 """
 
@@ -48,6 +49,15 @@ def import_old(rev: str, where: Path):
     return old_press
 
 
+def identical(ra, rb) -> bool:
+    """Whether two readings are bit-identical: image, force, force_field, position (``torch.equal``), steps, depth and
+    chamfer (``==``)."""
+    tensors = ("image", "force", "force_field", "position")
+    return all(torch.equal(getattr(ra, k), getattr(rb, k)) for k in tensors) and all(
+        getattr(ra, k) == getattr(rb, k) for k in ("steps", "depth", "chamfer")
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--old", required=True, help="git revision to compare with (e.g. HEAD~1)")
@@ -73,7 +83,7 @@ def main() -> None:
         for sim in (old, new):  # warm-up (and compile)
             sim.press(*jobs[0][1:4], **jobs[0][4])
         print(f"torch {torch.__version__}, 1 thread, {'compiled' if comp else 'eager'}; old = {args.old}")
-        ratios, t_old, t_new = [], 0.0, 0.0
+        ratios, t_old, t_new, differ = [], 0.0, 0.0, 0
         for k, (name, mesh, pos, d, kw) in enumerate(jobs):
             out = {}
             for which, sim in (("old", old), ("new", new)) if k % 2 == 0 else (("new", new), ("old", old)):
@@ -85,14 +95,17 @@ def main() -> None:
             t_old, t_new = t_old + a, t_new + b
             di = (ra.image - rb.image).abs().max().item()
             df = ((ra.force - rb.force).norm() / ra.force.norm().clamp_min(1e-30)).item()
+            same = identical(ra, rb)
+            differ += int(not same)
             print(
                 f"{name:12s} steps {ra.steps}/{rb.steps} old {a:5.2f} new {b:5.2f} CPU-s old/new {a / b:5.3f}; "
-                f"max|d image| {di:.2g}, |d force|/|force| {df:.2g}"
+                f"max|d image| {di:.2g}, |d force|/|force| {df:.2g}, bit-identical reading {same}"
             )
         n = len(jobs)
         print(
             f"median old/new {statistics.median(ratios):.3f}, total {t_old / t_new:.3f} "
-            f"({t_old / n:.2f} -> {t_new / n:.2f} CPU-s per touch on this machine's load)"
+            f"({t_old / n:.2f} -> {t_new / n:.2f} CPU-s per touch on this machine's load); readings not bit-identical: "
+            f"{differ} of {n}"
         )
 
 

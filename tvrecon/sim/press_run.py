@@ -204,14 +204,14 @@ class PressLoop:
         total = self.max_steps + int(p.release_steps)
         bar = tqdm(total=total * len(active), desc="EIP press", disable=not p.progress, leave=False)
         n = 0
+        hands: dict[tuple[float, ...], tuple[Tensor, Tensor]] = {}  # signs -> hand velocity and step (no autograd)
         while active:
             n += 1
             if n > total + 1:
                 raise RuntimeError("press loop did not terminate (internal error)")
             B = len(active)
             signs = [touches[t].hand_sign() for t in active]
-            sign_t = torch.tensor(signs, device=dev)  # (B,)
-            v_touch = sign_t[:, None] * speed_t * down  # (B, 3)
+            v_touch, moved = hands.get(tuple(signs)) or _hand(signs, speed_t, down, dt, hands)  # (B, 3) each
             # one scene without autograd: the (3,) hand velocity broadcasts over the particles (the same values, no
             # (P, 3) copy per step; with autograd the gradients' summation order is kept as it was)
             one = B == 1 and not (v_touch.requires_grad or alpha1.requires_grad)
@@ -221,25 +221,31 @@ class PressLoop:
                 state, collider=[touches[t].place.collider for t in active], hand_velocity=hv, alpha=alpha
             )
             xb = state.x.view(B, P, 3)
-            if not bool(torch.isfinite(xb[:, :HW]).all()):
+            lo_hi = torch.aminmax(xb[:, :HW].detach())  # NaN propagates: one reduction instead of isfinite + all
+            if not (math.isfinite(lo_hi.min.item()) and math.isfinite(lo_hi.max.item())):
                 raise FloatingPointError(
                     f"simulation diverged at step {n} (non-finite particle positions): lower PressConfig.dt or speed, "
                     f"or raise damping; current dt={dt:.3g}, speed={_scalar(speed):.3g}, E={_scalar(s.E):.3g}"
                 )
             force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
+            fz = force[:, 2].tolist()
             particle_force = None  # (B, P, 3), computed on the first stop of this step
             done_now = []
             for b, t in enumerate(active):
                 tc = touches[t]
-                tc.disp = tc.disp + v_touch[b] * dt
+                tc.disp = tc.disp + moved[b]
                 tc.travel += signs[b] * self.step_cells
                 if tc.pressing:
-                    tc.felt(float(force[b, 2]))
+                    tc.felt(fz[b])
                     if p.record_every and tc.steps % int(p.record_every) == 0:
                         self._record(tc, xb[b])
-                    if should_stop(self.rules, tc, StopCheck(xb[b, :HW] / dx, x0_contact, lattice)):
+                    check = StopCheck(xb[b, :HW] / dx, x0_contact, lattice)
+                    if should_stop(self.rules, tc, check):
                         img = self._image(xb[b, :HW], tc.disp)
-                        ch = terminal_chamfer(xb[b, :HW] / dx, x0_contact, lattice)
+                        # the threshold rule's exact value of this very layer, when it computed one (the same call)
+                        ch = check.memo.get("chamfer")
+                        if ch is None:
+                            ch = terminal_chamfer(check.contact_cells, x0_contact, lattice)
                         f_world = tc.place.R @ force[b].cpu()
                         tc.reading = self._reading(tc, img, chamfer=ch, force=f_world)
                         if particle_force is None:
@@ -308,6 +314,18 @@ class PressLoop:
             frame=tc.place.R.clone(),
             origin=tc.place.origin.clone(),
         )
+
+
+def _hand(
+    signs: list[float], speed: Tensor, down: Tensor, dt: float, cache: dict[tuple[float, ...], tuple[Tensor, Tensor]]
+) -> tuple[Tensor, Tensor]:
+    """(B, 3) hand velocity of each scene (``signs`` in units of ``speed`` along ``down``) and its (B, 3) move in one
+    step of ``dt``; kept in ``cache`` under ``signs`` unless it needs gradients (the same values every step)."""
+    v_touch = torch.tensor(signs, device=down.device)[:, None] * speed * down
+    out = v_touch, v_touch * dt
+    if not v_touch.requires_grad:
+        cache[tuple(signs)] = out
+    return out
 
 
 def _finish(tc: TouchRun) -> None:

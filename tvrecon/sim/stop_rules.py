@@ -19,7 +19,7 @@ and reach follow the raised value).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -73,18 +73,69 @@ def terminal_chamfer(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | No
 chamfer_eq13 = terminal_chamfer
 
 
-def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], threshold: float) -> bool:
+def rest_terms(x0: Tensor, lattice: tuple[int, int, float]) -> tuple[Tensor, float]:
+    """What :func:`chamfer_surely_below` needs of the rest layer, once per press.
+
+    Args:
+        x0: (N, 3) planar rest lattice, in cells. lattice: (H, W, spacing) of ``x0``.
+    Returns:
+        ``b``: (N, 3) float64, ``x0`` centred as :func:`terminal_chamfer` centres it (float32 ops, then float64), and
+        ``beta``: the root mean square distance of ``b`` to the nearest points of the ideal lattice (cells), the
+        float32 rounding of the rest layer (~1e-5 cells).
+    """
+    b = (x0 - x0.mean(0)).detach().double()
+    H, W, sp = lattice
+    j = torch.clamp(torch.round(b[:, 0] / sp + (W - 1) / 2), 0, W - 1)
+    i = torch.clamp(torch.round(b[:, 1] / sp + (H - 1) / 2), 0, H - 1)
+    d2 = (b[:, 0] - (j - (W - 1) / 2) * sp) ** 2 + (b[:, 1] - (i - (H - 1) / 2) * sp) ** 2 + b[:, 2] ** 2
+    return b, float(d2.mean().sqrt())
+
+
+def chamfer_surely_below(x: Tensor, rest: tuple[Tensor, float], threshold: float) -> bool:
+    """True only when ``terminal_chamfer(x, x0, lattice) < threshold`` (False: undecided), with a few ops.
+
+    With ``a`` and ``b`` the centred layers :func:`terminal_chamfer` builds and ``r`` the root mean square of ``|a_p -
+    b_p|`` (each particle and its own rest point): the second chamfer term is at most ``r^2`` (each rest point has
+    its own particle), and the first at most ``(r + beta)^2`` (each particle has the lattice point nearest its rest
+    point, ``beta`` away from it in the mean square: triangle inequality of the root mean square). ``r`` is computed
+    in float64 from the same float32 ``a`` and ``b`` (their differences are exact in float64, or rounded at 2^-53),
+    so the relative 1e-6 margin covers the rounding of the sums with room to spare.
+
+    Args:
+        x: (N, 3) contact layer now, in cells. rest: :func:`rest_terms` of the rest layer. threshold: squared cells.
+    """
+    b, beta = rest
+    a = (x - x.mean(0)).detach().double()
+    e = a - b.to(a.device)
+    r = float((e * e).sum()) / len(e)
+    r = r**0.5
+    return (r + beta) ** 2 + r * r < float(threshold) * (1.0 - 1e-6)
+
+
+def chamfer_reaches(
+    x: Tensor,
+    x0: Tensor,
+    lattice: tuple[int, int, float],
+    threshold: float,
+    rest: tuple[Tensor, float] | None = None,
+    memo: dict[str, float] | None = None,
+) -> bool:
     """Whether ``terminal_chamfer(x, x0, lattice) >= threshold``, usually without a k-d tree.
 
-    The second chamfer term (rest lattice -> nearest particle) is at most the mean squared distance of each rest
-    point to *its own* particle (same index, both centred), so when the exact first term plus that bound stays
-    below the threshold the answer is False; only otherwise is the exact value computed. Same result as comparing
-    :func:`terminal_chamfer`, at a fraction of the cost per step.
+    First :func:`chamfer_surely_below` (a handful of ops: most press steps end there). Then the exact first term plus
+    a bound of the second: the second chamfer term (rest lattice -> nearest particle) is at most the mean squared
+    distance of each rest point to *its own* particle (same index, both centred), so when the exact first term plus
+    that bound stays below the threshold the answer is False; only otherwise is the exact value computed. Same result
+    as comparing :func:`terminal_chamfer`, at a fraction of the cost per step.
 
     Args:
         x: (N, 3) contact layer now, in cells. x0: (N, 3) planar rest lattice, in cells.
         lattice: (H, W, spacing) of ``x0``. threshold: squared cells per particle.
+        rest: :func:`rest_terms` of ``x0`` when the caller keeps them (computed here otherwise).
+        memo: when given, the exact :func:`terminal_chamfer` value goes to ``memo["chamfer"]`` if it was computed.
     """
+    if chamfer_surely_below(x, rest_terms(x0, lattice) if rest is None else rest, threshold):
+        return False
     a = (x - x.mean(0)).detach()
     b = (x0 - x0.mean(0)).detach().to(a)
     H, W, sp = lattice
@@ -94,7 +145,10 @@ def chamfer_reaches(x: Tensor, x0: Tensor, lattice: tuple[int, int, float], thre
     upper = float(d_ab2.mean() + ((a - b) ** 2).sum(1).mean())
     if upper < float(threshold) * (1.0 - 1e-6):
         return False
-    return terminal_chamfer(x, x0, lattice) >= float(threshold)
+    value = terminal_chamfer(x, x0, lattice)
+    if memo is not None:
+        memo["chamfer"] = value
+    return value >= float(threshold)
 
 
 def travel_for_depth(p: PressConfig) -> PressConfig:
@@ -119,11 +173,16 @@ class PressState(Protocol):
 
 @dataclass(frozen=True)
 class StopCheck:
-    """The contact layer after a step, for rules that look at the pad (cells; ``lattice`` = (H, W, spacing))."""
+    """The contact layer after a step, for rules that look at the pad (cells; ``lattice`` = (H, W, spacing)).
+
+    ``memo``: values a rule computed on the way that the caller may reuse (``"chamfer"``: the exact
+    :func:`terminal_chamfer` of this layer, when :class:`ThresholdRule` needed it).
+    """
 
     contact_cells: Tensor
     rest_cells: Tensor
     lattice: tuple[int, int, float]
+    memo: dict[str, float] = field(default_factory=dict, compare=False, repr=False)
 
 
 class StopRule(Protocol):
@@ -171,9 +230,16 @@ class ThresholdRule:
     """The terminal check of Algorithm 1: stop once in contact and :func:`terminal_chamfer` >= ``threshold``."""
 
     threshold: float
+    _rest: dict[str, object] = field(default_factory=dict, compare=False, repr=False)  # rest_terms, per rest layer
 
     def reached(self, state: PressState, check: StopCheck) -> bool:
-        return state.contact and chamfer_reaches(check.contact_cells, check.rest_cells, check.lattice, self.threshold)
+        if not state.contact:
+            return False
+        if self._rest.get("x0") is not check.rest_cells:  # the same rest layer every step of a press
+            self._rest.update(x0=check.rest_cells, terms=rest_terms(check.rest_cells, check.lattice))
+        rest = self._rest["terms"]
+        x, x0, lattice = check.contact_cells, check.rest_cells, check.lattice
+        return chamfer_reaches(x, x0, lattice, self.threshold, rest=rest, memo=check.memo)  # type: ignore[arg-type]
 
 
 def threshold_cells(p: PressConfig) -> float:

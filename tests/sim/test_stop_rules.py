@@ -1,0 +1,63 @@
+"""The cheap first stage of the terminal check decides only where the exact chamfer is below the threshold."""
+
+from __future__ import annotations
+
+import torch
+
+from tvrecon.sim.sensor import SensorConfig, pad_lattice
+from tvrecon.sim.stop_rules import (
+    StopCheck,
+    ThresholdRule,
+    chamfer_reaches,
+    chamfer_surely_below,
+    rest_terms,
+    terminal_chamfer,
+)
+
+
+def _layers(dtype: torch.dtype) -> tuple[torch.Tensor, tuple[int, int, float], list[torch.Tensor]]:
+    """A 16x12 rest layer in cells (as the press builds it: domain units / dx, float32 rounding) and deformed ones."""
+    cfg = SensorConfig(resolution=(16, 12), layers=2)
+    dx = 1.0 / 128
+    x0 = (pad_lattice(cfg)[:192] * dx + torch.tensor([0.5, 0.5, 0.51])) / dx
+    g = torch.Generator().manual_seed(5)
+    xs = []
+    for scale in (0.005, 0.02, 0.05, 0.1, 0.2, 0.4):
+        bump = scale * torch.randn(192, 3, generator=g, dtype=torch.float64)
+        bump[:, 2] -= 3 * scale * (x0[:, 0] - x0[:, 0].mean()).double().abs() / 8  # a dent, not only noise
+        xs.append((x0.double() + bump + torch.tensor([0.3, -0.2, -2.0], dtype=torch.float64)).to(dtype))
+    return x0.to(dtype), (16, 12, float(cfg.spacing)), xs
+
+
+def test_surely_below_only_below_the_chamfer() -> None:
+    """True only when the exact chamfer is below the threshold, and True well below it (it must skip steps)."""
+    for dtype in (torch.float32, torch.float64):
+        x0, lattice, xs = _layers(dtype)
+        rest = rest_terms(x0, lattice)
+        assert 0 <= rest[1] < 1e-4  # float32 rounding of the rest layer only
+        for x in xs:
+            value = terminal_chamfer(x, x0, lattice)
+            for f in (0.3, 0.6, 0.9, 0.999, 1.0, 1.001, 1.5, 2.5, 4.0):
+                thr = f * value
+                if chamfer_surely_below(x, rest, thr):
+                    assert value < thr
+                assert chamfer_reaches(x, x0, lattice, thr, rest=rest) == (value >= thr)
+            assert chamfer_surely_below(x, rest, 4.0 * value)
+
+
+def test_threshold_rule_memo_is_the_exact_chamfer() -> None:
+    """When the rule computes the exact chamfer it leaves that value for the reading (the same call's result)."""
+
+    class State:
+        steps, travel, contact, force_hist = 10, 3.0, True, [1.0]
+
+    x0, lattice, xs = _layers(torch.float32)
+    x = xs[-1]
+    value = terminal_chamfer(x, x0, lattice)
+    rule = ThresholdRule(0.999 * value)
+    check = StopCheck(x, x0, lattice)
+    assert rule.reached(State(), check)
+    assert check.memo["chamfer"] == value
+    far = StopCheck(x, x0, lattice)
+    assert not ThresholdRule(10.0 * value).reached(State(), far)
+    assert "chamfer" not in far.memo  # decided by the bound: no exact value computed
