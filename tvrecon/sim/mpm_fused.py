@@ -9,7 +9,8 @@ update and the colliders (their fields looked up only when a block moves, ``mpm_
 G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
 node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
-without a copy.
+without a copy. The reading's force field (``MLSMPM.last_particle_force``) is one compiled gather too
+(:func:`particle_force`).
 """
 
 from __future__ import annotations
@@ -23,13 +24,14 @@ from torch import Tensor
 
 from .colliders import Collider
 from .materials import polar_decomposition
+from .mpm_compiled import CompileFailed
 from .mpm_compiled_grid import ColliderFields
-from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed
+from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed, share_node_force
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
 
-__all__ = ["CF_VIEWS", "fused_step"]
+__all__ = ["CF_VIEWS", "fused_step", "particle_force"]
 
 #: the compiled step returns its (P, 3) / (P, 3, 3) state tensors as views of its channel-first (3, P) / (9, P)
 #: buffers (same values, transposed strides), so that the next compiled step reads them without a copy. False:
@@ -127,3 +129,21 @@ def fused_step(
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
     xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return _cf_state(state, xn, vn, Cn, Fn)
+
+
+def particle_force(solver: MLSMPM, transfer: Transfer, mass: Tensor) -> Tensor:
+    """``MLSMPM.last_particle_force`` of a compiled solver: :func:`tvrecon.sim.mpm_grid.share_node_force` as one
+    compiled gather of the per-mass node forces (``mpm_compiled.share_force``; the same terms summed in another order,
+    without the eager ``(27, P, 3)`` gathered copy). mass: (P,). Returns (P, 3), detached."""
+    lin, w, gm, node_force, (S0, S1) = transfer
+    o_int = solver._constants(w.dtype, w.device)[2]  # (27, 3) int64 stencil offsets
+    if solver._kernels is None or mass.shape != lin.shape:  # (the eager function raises on a wrong shape)
+        return share_node_force(transfer, mass, o_int)
+    per_mass = (node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]).contiguous()  # (N, 3)
+    runs = per_mass.as_strided((per_mass.shape[0] - 2, 9), (3, 1))  # as in fused_step's G2P
+    offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1
+    try:
+        return solver._kernels("share", runs, offs, lin, w.detach(), mass.detach().to(w))
+    except CompileFailed:
+        solver._kernels = None  # warned once; eager from now on
+        return share_node_force(transfer, mass, o_int)
