@@ -6,6 +6,8 @@ layout only: each particle's 108 contributions are one contiguous row of a node-
 (``index_add_`` along the nodes, ~1.9x faster than the eager step's ``(108, N)`` columns), whose 27 offsets are
 then summed by the compiled ``grid_collide`` (another summation order: equal to round-off), which also does the grid
 update and the colliders (their fields looked up only when a block moves, ``mpm_compiled_grid.ColliderFields``).
+On CPU with one torch thread, float32, P2G is instead one C++ loop that adds each particle's stencil straight onto
+the ``(N, 4)`` grid (:mod:`.mpm_scatter`; paper touches ~1.25x faster in one process, equal to round-off).
 G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
 node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
@@ -27,6 +29,7 @@ from .materials import polar_decomposition
 from .mpm_compiled import CompileFailed
 from .mpm_compiled_grid import ColliderFields
 from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed, share_node_force
+from .mpm_scatter import fused_p2g, p2g_grid_available
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
@@ -109,12 +112,15 @@ def fused_step(
     mu, lam = float(solver.mu), float(solver.lam)
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
-    G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
-    chunk = st.chunk
-    for s0 in range(0, P, chunk):
-        n = min(chunk, P - s0)
-        contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
-        G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
+    if p2g_grid_available(x):  # CPU, one thread: the fused C++ scatter onto the (N, 4) grid (mpm_scatter)
+        G = fused_p2g(Ft, Rt, Ct, vt, fx, w, state.mass, state.volume, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
+    else:
+        G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
+        chunk = st.chunk
+        for s0 in range(0, P, chunk):
+            n = min(chunk, P - s0)
+            contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
+            G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
     gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
