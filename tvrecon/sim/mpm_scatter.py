@@ -25,18 +25,22 @@ __all__ = ["SOURCE", "fused_p2g", "p2g_grid_available"]
 
 log = logging.getLogger(__name__)
 
-#: the C++ source: phase 1 (a loop over particles that the compiler vectorizes) computes per particle the 13 numbers
+#: the C++ source: phase 1 (a loop over particles, ``omp simd``) computes per particle the 13 numbers
 #: q = [m, then per axis a: mv0_a, dx A_a0, dx A_a1, dx A_a2] (channel-first (13, P)); phase 2 adds
-#: ``w_o [m, mv0 + dx A o]`` for the 27 offsets o = (i, j, k) to node ``lin + i S0 + j S1 + k`` of the (N, 4) grid.
-#: The arithmetic is ``mpm_compiled.p2g_contrib``'s, in its order (no contraction: ``-ffp-contract=off`` as
-#: inductor compiles).
+#: ``w_o [m, mv0 + dx A o]`` for the 27 offsets o = (i, j, k) to node ``lin + i S0 + j S1 + k`` of the (N, 4) grid,
+#: the 4 channels of a node as one 4-float vector (GCC / Clang vector extension: another compiler fails the build,
+#: and the row path stays).
+#: The arithmetic is ``mpm_compiled.p2g_contrib``'s, term by term in its order.
 SOURCE = r"""
 #include <cstdint>
+#include <cstring>
+typedef float v4 __attribute__((vector_size(16)));
 extern "C" void p2g_grid(const float* F, const float* R, const float* C, const float* v, const float* fx,
                          const float* w, const float* m_, const float* vol, const int64_t* lin, int64_t P,
                          int64_t S0, int64_t S1, float mu, float lam, float dt, float dx, float inv_dx, float* q,
                          float* grid) {
   const float gscale = 4.0f * dt * inv_dx * inv_dx;
+#pragma omp simd
   for (int64_t p = 0; p < P; ++p) {
     float f[9], d[9], tau[9];
     for (int e = 0; e < 9; ++e) { f[e] = F[e * P + p]; d[e] = 2.0f * mu * (f[e] - R[e * P + p]); }
@@ -59,20 +63,21 @@ extern "C" void p2g_grid(const float* F, const float* R, const float* C, const f
     }
   }
   for (int64_t p = 0; p < P; ++p) {
-    float c0[4], ci[4], cj[4], ck[4];
-    c0[0] = q[p]; ci[0] = 0.0f; cj[0] = 0.0f; ck[0] = 0.0f;
-    for (int a = 0; a < 3; ++a) {
-      c0[1 + a] = q[(1 + 4 * a) * P + p]; ci[1 + a] = q[(2 + 4 * a) * P + p];
-      cj[1 + a] = q[(3 + 4 * a) * P + p]; ck[1 + a] = q[(4 + 4 * a) * P + p];
-    }
+    v4 c0 = {q[p], q[P + p], q[5 * P + p], q[9 * P + p]};
+    v4 ci = {0.0f, q[2 * P + p], q[6 * P + p], q[10 * P + p]};
+    v4 cj = {0.0f, q[3 * P + p], q[7 * P + p], q[11 * P + p]};
+    v4 ck = {0.0f, q[4 * P + p], q[8 * P + p], q[12 * P + p]};
     const int64_t b0 = lin[p];
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
         float* g = grid + 4 * (b0 + i * S0 + j * S1);
+        const v4 base = (c0 + (float)i * ci) + (float)j * cj;
         for (int k = 0; k < 3; ++k) {
           const float wo = w[(9 * i + 3 * j + k) * P + p];
-          for (int c = 0; c < 4; ++c)
-            g[4 * k + c] += wo * (((c0[c] + (float)i * ci[c]) + (float)j * cj[c]) + (float)k * ck[c]);
+          v4 acc;
+          std::memcpy(&acc, g + 4 * k, sizeof(v4));
+          acc += wo * (base + (float)k * ck);
+          std::memcpy(g + 4 * k, &acc, sizeof(v4));
         }
       }
   }
