@@ -112,7 +112,7 @@ def fused_step(
     mu, lam = float(solver.mu), float(solver.lam)
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
-    if p2g_grid_available(x):  # CPU, one thread: the fused C++ scatter onto the (N, 4) grid (mpm_scatter)
+    if p2g_grid_available(x, state.mass, state.volume):  # CPU, one thread: the fused C++ scatter (mpm_scatter)
         G = fused_p2g(Ft, Rt, Ct, vt, fx, w, state.mass, state.volume, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
     else:
         G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles

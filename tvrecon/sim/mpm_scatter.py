@@ -102,9 +102,11 @@ def _library():
     return _LIB or None
 
 
-def p2g_grid_available(x: Tensor) -> bool:
-    """Whether :func:`fused_p2g` runs for a state like ``x``: float32 on the CPU, one torch thread, library built."""
-    return x.device.type == "cpu" and x.dtype == torch.float32 and torch.get_num_threads() == 1 and bool(_library())
+def p2g_grid_available(*tensors: Tensor) -> bool:
+    """Whether :func:`fused_p2g` runs for these inputs: all float32 on the CPU, one torch thread, library built."""
+    if not all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors):
+        return False
+    return torch.get_num_threads() == 1 and bool(_library())
 
 
 def fused_p2g(
