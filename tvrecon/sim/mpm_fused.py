@@ -7,7 +7,7 @@ layout only: each particle's 108 contributions are one contiguous row of a node-
 then summed by the compiled ``grid_collide`` (another summation order: equal to round-off), which also does the grid
 update and the colliders (their fields looked up only when a block moves, ``mpm_compiled_grid.ColliderFields``).
 On CPU with one torch thread, float32, P2G is instead one C++ loop that adds each particle's stencil straight onto
-the ``(N, 4)`` grid (:mod:`.mpm_scatter`; paper touches ~1.25x faster in one process, equal to round-off).
+the ``(N, 4)`` grid (:mod:`.mpm_scatter`; paper touches ~1.3x faster in one process, equal to round-off).
 G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
 node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
