@@ -47,6 +47,24 @@ def test_fused_p2g_matches_row_scatter(one_thread, B):
     torch.testing.assert_close(got.T, ref, rtol=1e-5, atol=1e-6 * float(ref.abs().max()))
 
 
+@needs_compiler
+def test_fused_p2g_refuses_a_stencil_outside_the_block(one_thread):
+    """A base node whose 3x3x3 stencil leaves the block is an IndexError (as the row path's index_add_), never a
+    write out of bounds."""
+    P, N, S0, S1 = 4, 5 * 5 * 5, 25, 5
+    if not mpm_scatter.p2g_grid_available(torch.zeros(1)):
+        pytest.skip("the fused scatter could not be built here")
+    F = torch.eye(3).reshape(9, 1).repeat(1, P)
+    args = (F, F, torch.zeros(9, P), torch.zeros(3, P), torch.full((3, P), 0.5), torch.full((27, P), 1 / 27))
+    m = torch.ones(P)
+    ok = torch.tensor([0, 1, 31, 62])  # the last one's stencil ends at node 62 + 2 * 25 + 2 * 5 + 2 = 124
+    grid = mpm_scatter.fused_p2g(*args, m, m, ok, N, S0, S1, 1.0, 1.0, 1e-3, 0.1, 10.0)
+    assert float(grid[:, 0].sum()) == pytest.approx(P)  # each particle's weights sum to 1: its mass lands whole
+    for bad in (63, -1):
+        with pytest.raises(IndexError, match="1 of 4 particles leave the 125-node block"):
+            mpm_scatter.fused_p2g(*args, m, m, torch.tensor([0, 1, 31, bad]), N, S0, S1, 1.0, 1.0, 1e-3, 0.1, 10.0)
+
+
 @pytest.mark.slow
 @needs_compiler
 def test_compiled_step_with_fused_p2g_equals_eager(one_thread, monkeypatch):

@@ -143,8 +143,9 @@ def particle_force(solver: MLSMPM, transfer: Transfer, mass: Tensor) -> Tensor:
     without the eager ``(27, P, 3)`` gathered copy). mass: (P,). Returns (P, 3), detached."""
     lin, w, gm, node_force, (S0, S1) = transfer
     o_int = solver._constants(w.dtype, w.device)[2]  # (27, 3) int64 stencil offsets
-    if solver._kernels is None or mass.shape != lin.shape:  # (the eager function raises on a wrong shape)
-        return share_node_force(transfer, mass, o_int)
+    differentiable = w.requires_grad or node_force.requires_grad or mass.requires_grad
+    if solver._kernels is None or mass.shape != lin.shape or differentiable:  # eager: raises on a wrong shape and
+        return share_node_force(transfer, mass, o_int)  # keeps the graph of a differentiable step
     per_mass = (node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]).contiguous()  # (N, 3)
     runs = per_mass.as_strided((per_mass.shape[0] - 2, 9), (3, 1))  # as in fused_step's G2P
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1

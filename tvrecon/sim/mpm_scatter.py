@@ -35,10 +35,10 @@ SOURCE = r"""
 #include <cstdint>
 #include <cstring>
 typedef float v4 __attribute__((vector_size(16)));
-extern "C" void p2g_grid(const float* F, const float* R, const float* C, const float* v, const float* fx,
-                         const float* w, const float* m_, const float* vol, const int64_t* lin, int64_t P,
-                         int64_t S0, int64_t S1, float mu, float lam, float dt, float dx, float inv_dx, float* q,
-                         float* grid) {
+extern "C" int64_t p2g_grid(const float* F, const float* R, const float* C, const float* v, const float* fx,
+                            const float* w, const float* m_, const float* vol, const int64_t* lin, int64_t P,
+                            int64_t S0, int64_t S1, int64_t n_nodes, float mu, float lam, float dt, float dx,
+                            float inv_dx, float* q, float* grid) {
   const float gscale = 4.0f * dt * inv_dx * inv_dx;
 #pragma omp simd
   for (int64_t p = 0; p < P; ++p) {
@@ -62,12 +62,14 @@ extern "C" void p2g_grid(const float* F, const float* R, const float* C, const f
       q[(2 + 4 * a) * P + p] = dx * A0; q[(3 + 4 * a) * P + p] = dx * A1; q[(4 + 4 * a) * P + p] = dx * A2;
     }
   }
+  int64_t outside = 0;  // particles whose 3x3x3 stencil leaves the block: skipped, counted, an error in Python
   for (int64_t p = 0; p < P; ++p) {
+    const int64_t b0 = lin[p];
+    if (b0 < 0 || b0 + 2 * S0 + 2 * S1 + 2 >= n_nodes) { ++outside; continue; }
     v4 c0 = {q[p], q[P + p], q[5 * P + p], q[9 * P + p]};
     v4 ci = {0.0f, q[2 * P + p], q[6 * P + p], q[10 * P + p]};
     v4 cj = {0.0f, q[3 * P + p], q[7 * P + p], q[11 * P + p]};
     v4 ck = {0.0f, q[4 * P + p], q[8 * P + p], q[12 * P + p]};
-    const int64_t b0 = lin[p];
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
         float* g = grid + 4 * (b0 + i * S0 + j * S1);
@@ -81,6 +83,7 @@ extern "C" void p2g_grid(const float* F, const float* R, const float* C, const f
         }
       }
   }
+  return outside;
 }
 """
 
@@ -94,7 +97,7 @@ def _library():
             from torch._inductor.codecache import CppCodeCache
 
             lib = CppCodeCache.load(SOURCE)
-            lib.p2g_grid.restype = None
+            lib.p2g_grid.restype = ctypes.c_int64
             _LIB = lib
         except Exception as e:  # noqa: BLE001 - no compiler, another torch: the row path stays
             log.warning("the fused P2G scatter could not be built (%s: %s); using the row scatter", type(e).__name__, e)
@@ -137,7 +140,9 @@ def fused_p2g(
     q = torch.empty(13, P, dtype=torch.float32)
     grid = torch.zeros(n_nodes, 4, dtype=torch.float32)
     ptr = [ctypes.c_void_p(t.data_ptr()) for t in (*args, lin)]
-    ints = [ctypes.c_int64(k) for k in (P, S0, S1)]
+    ints = [ctypes.c_int64(k) for k in (P, S0, S1, n_nodes)]
     floats = [ctypes.c_float(k) for k in (mu, lam, dt, dx, inv_dx)]
-    _library().p2g_grid(*ptr, *ints, *floats, ctypes.c_void_p(q.data_ptr()), ctypes.c_void_p(grid.data_ptr()))
+    outside = _library().p2g_grid(*ptr, *ints, *floats, ctypes.c_void_p(q.data_ptr()), ctypes.c_void_p(grid.data_ptr()))
+    if outside:  # the row path's index_add_ raises here too; nothing was written out of bounds
+        raise IndexError(f"fused P2G: the stencils of {outside} of {P} particles leave the {n_nodes}-node block")
     return grid
