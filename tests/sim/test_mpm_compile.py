@@ -136,6 +136,24 @@ def test_compiled_press_images_match_eager():
     torch.testing.assert_close(new.force, ref.force, rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.slow
+@needs_compiler
+def test_compiled_particle_force_matches_eager():
+    """``last_particle_force`` of a compiled solver (one compiled gather) equals the eager ``share_node_force`` of the
+    same step to float32 round-off (another summation order)."""
+    from tvrecon.sim.mpm_grid import share_node_force
+
+    comp = MLSMPM(MPMConfig(n_grid=32), compile=True)
+    comp.compiled_chunk_size = 256
+    state, _ = _press(comp, 12)
+    assert comp.compiled, "compilation fell back to eager"
+    ref = share_node_force(comp._last_transfer, state.mass, comp._constants(torch.float32, torch.device("cpu"))[2])
+    got = comp.last_particle_force(state.mass)
+    assert ref.abs().max() > 0, "the pad must touch"
+    torch.testing.assert_close(got, ref, rtol=1e-5, atol=1e-6 * float(ref.abs().max()))
+    torch.testing.assert_close(got.sum(0), comp.last_force[0], rtol=1e-4, atol=1e-6)  # nothing lost
+
+
 @pytest.mark.parametrize("friction,damping", [(0.0, 0.0), (0.5, 2.0)])
 def test_grid_collide_matches_eager_grid_update(friction, damping):
     """The compiled grid side (plain function + collider fields) equals the eager grid update and collide_grid:

@@ -25,6 +25,8 @@ from torch import Tensor
 
 from .colliders import Collider, collide_grid
 from .materials import fixed_corotated_kirchhoff, lame_parameters, p_wave_speed, polar_decomposition
+from .mpm_compiled import CompileFailed, compiled_kernels
+from .mpm_fused import fused_step, particle_force
 from .mpm_grid import (
     Stencil,
     Transfer,
@@ -217,8 +219,6 @@ class MLSMPM:
             compile = os.environ.get("TVRECON_COMPILE", "0") == "1"
         self._kernels = None
         if compile:
-            from .mpm_compiled import compiled_kernels
-
             self._kernels = compiled_kernels()
 
     @property
@@ -304,9 +304,6 @@ class MLSMPM:
             return self._step(state, colliders, hand_velocity, alpha, B, block)
         with torch.no_grad():
             if self._kernels is not None and self.cfg.contact == "grid":  # opt-in fused kernels (compile=True)
-                from .mpm_compiled import CompileFailed
-                from .mpm_fused import fused_step
-
                 try:
                     return fused_step(self, state, colliders, hand_velocity, alpha, B, block)
                 except CompileFailed:
@@ -469,6 +466,8 @@ class MLSMPM:
             raise RuntimeError("last_particle_force needs a step first")
         if self.cfg.contact == "particle":  # the collider acted on the particles: their own forces
             return self._particle_contact_force
+        if self._kernels is not None:  # compiled: one fused gather (same terms, mpm_fused.particle_force)
+            return particle_force(self, self._last_transfer, mass)
         w = self._last_transfer.w
         return share_node_force(self._last_transfer, mass, self._constants(w.dtype, w.device)[2])
 

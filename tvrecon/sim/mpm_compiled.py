@@ -19,7 +19,9 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
   part of :func:`tvrecon.sim.mpm_compiled_grid.grid_collide`, the grid update and colliders);
 - :func:`g2p_update`: the gather of the 27 node velocities straight from the grid, as 9 runs of 3 neighbouring nodes
   (no bounds asserts: the indices are inside the block by construction), the APIC sums and the particle update of
-  eq. 8-11.
+  eq. 8-11;
+- :func:`share_force`: the collider's node forces shared out over the particles (``mpm_grid.share_node_force``, the
+  reading's force field) with the same gather of 9 runs.
 
 Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
 The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
@@ -46,6 +48,7 @@ __all__ = [
     "p2g_contrib",
     "node_sums",
     "g2p_update",
+    "share_force",
 ]
 
 log = logging.getLogger(__name__)
@@ -251,6 +254,15 @@ def g2p_update(
     return x_new, torch.stack(v_new, 0), torch.stack(Cn, 0), F_new
 
 
+def share_force(pm: Tensor, offs: Tensor, lin: Tensor, w: Tensor, mass: Tensor) -> Tensor:
+    """``f_p = m_p sum_o w_o (f / m)(base + o)`` (:func:`tvrecon.sim.mpm_grid.share_node_force`, another summation
+    order): pm (N - 2, 9) runs of the per-mass node forces ``f_i / m_i`` (as ``gv`` of :func:`g2p_update`), offs (9,),
+    lin (P,), w (27, P), mass (P,). Returns the (P, 3) particle forces."""
+    g = pm[lin[None, :] + offs[:, None]]  # (9, P, 9)
+    acc = [sum(w[o] * g[o // 3, :, 3 * (o % 3) + c] for o in range(27)) for c in range(3)]
+    return torch.stack([mass * a for a in acc], 1)
+
+
 # per kernel, the dimension of each positional argument that varies (the particle or node count; None: not a tensor
 # or fixed). Only these are marked dynamic: ``dynamic=True`` would also make the 3s and 9s symbolic, and inductor
 # then emits scalar (unvectorized) loops with symbolic strides.
@@ -261,6 +273,7 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "p2g": (1, 1, 1, 1, 1, 0, 0, 1, None, None),
     "grid": (0, None, None, 0, 1),
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
+    "share": (0, None, 0, 1, 0),
 }
 
 
@@ -293,6 +306,7 @@ class CompiledKernels:
                 ("p2g", p2g_contrib),
                 ("grid", grid_collide),
                 ("g2p", g2p_update),
+                ("share", share_force),
             )
         }
 

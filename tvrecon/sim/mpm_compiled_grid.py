@@ -40,14 +40,15 @@ def grid_collide(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """Grid update of one step from the scattered P2G rows.
 
-    G: (N, 108) P2G rows per base node (:func:`node_sums`); S0, S1: node-axis strides of i and j; sdf (N,) and
+    G: (N, 108) P2G rows per base node (:func:`node_sums`), or the (N, 4) node sums themselves
+    (:func:`tvrecon.sim.mpm_scatter.fused_p2g`); S0, S1: node-axis strides of i and j; sdf (N,) and
     nrm (3, N): the colliders on the nodes (:class:`ColliderFields`; None: no collider in any scene); B scenes of
     N / B nodes each; damp: ``exp(-damping dt)`` (1: none).
 
     Returns gv (N, 3) node velocities after the colliders, gm (N,) node masses, node_force (N, 3) ``m dv / dt``,
     force (B, 3) its per-scene sums and vmax (0-dim) the largest ``|gv|`` component.
     """
-    grid = node_sums(G, S0, S1)  # (4, N)
+    grid = G.T if G.shape[1] == 4 else node_sums(G, S0, S1)  # (4, N)
     gm = grid[0]
     has_mass = gm > 0
     safe_m = torch.where(has_mass, gm, torch.ones_like(gm))

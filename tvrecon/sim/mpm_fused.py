@@ -6,10 +6,13 @@ layout only: each particle's 108 contributions are one contiguous row of a node-
 (``index_add_`` along the nodes, ~1.9x faster than the eager step's ``(108, N)`` columns), whose 27 offsets are
 then summed by the compiled ``grid_collide`` (another summation order: equal to round-off), which also does the grid
 update and the colliders (their fields looked up only when a block moves, ``mpm_compiled_grid.ColliderFields``).
+On CPU with one torch thread, float32, P2G is instead one C++ loop that adds each particle's stencil straight onto
+the ``(N, 4)`` grid (:mod:`.mpm_scatter`; paper touches ~1.3x faster in one process, equal to round-off).
 G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
 node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
-without a copy.
+without a copy. The reading's force field (``MLSMPM.last_particle_force``) is one compiled gather too
+(:func:`particle_force`).
 """
 
 from __future__ import annotations
@@ -23,13 +26,15 @@ from torch import Tensor
 
 from .colliders import Collider
 from .materials import polar_decomposition
+from .mpm_compiled import CompileFailed
 from .mpm_compiled_grid import ColliderFields
-from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed
+from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed, share_node_force
+from .mpm_scatter import fused_p2g, p2g_grid_available
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
 
-__all__ = ["CF_VIEWS", "fused_step"]
+__all__ = ["CF_VIEWS", "fused_step", "particle_force"]
 
 #: the compiled step returns its (P, 3) / (P, 3, 3) state tensors as views of its channel-first (3, P) / (9, P)
 #: buffers (same values, transposed strides), so that the next compiled step reads them without a copy. False:
@@ -107,12 +112,15 @@ def fused_step(
     mu, lam = float(solver.mu), float(solver.lam)
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
-    G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
-    chunk = st.chunk
-    for s0 in range(0, P, chunk):
-        n = min(chunk, P - s0)
-        contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
-        G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
+    if p2g_grid_available(x, state.mass, state.volume):  # CPU, one thread: the fused C++ scatter (mpm_scatter)
+        G = fused_p2g(Ft, Rt, Ct, vt, fx, w, state.mass, state.volume, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
+    else:
+        G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
+        chunk = st.chunk
+        for s0 in range(0, P, chunk):
+            n = min(chunk, P - s0)
+            contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
+            G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
     gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
@@ -127,3 +135,22 @@ def fused_step(
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
     xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return _cf_state(state, xn, vn, Cn, Fn)
+
+
+def particle_force(solver: MLSMPM, transfer: Transfer, mass: Tensor) -> Tensor:
+    """``MLSMPM.last_particle_force`` of a compiled solver: :func:`tvrecon.sim.mpm_grid.share_node_force` as one
+    compiled gather of the per-mass node forces (``mpm_compiled.share_force``; the same terms summed in another order,
+    without the eager ``(27, P, 3)`` gathered copy). mass: (P,). Returns (P, 3), detached."""
+    lin, w, gm, node_force, (S0, S1) = transfer
+    o_int = solver._constants(w.dtype, w.device)[2]  # (27, 3) int64 stencil offsets
+    differentiable = w.requires_grad or node_force.requires_grad or mass.requires_grad
+    if solver._kernels is None or mass.shape != lin.shape or differentiable:  # eager: raises on a wrong shape and
+        return share_node_force(transfer, mass, o_int)  # keeps the graph of a differentiable step
+    per_mass = (node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]).contiguous()  # (N, 3)
+    runs = per_mass.as_strided((per_mass.shape[0] - 2, 9), (3, 1))  # as in fused_step's G2P
+    offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1
+    try:
+        return solver._kernels("share", runs, offs, lin, w.detach(), mass.detach().to(w))
+    except CompileFailed:
+        solver._kernels = None  # warned once; eager from now on
+        return share_node_force(transfer, mass, o_int)
