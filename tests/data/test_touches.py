@@ -174,15 +174,6 @@ def _sim_available() -> bool:
     return True
 
 
-@pytest.fixture
-def one_thread():
-    """Tiny simulations run far faster single-threaded on a busy 2-core machine (no oversubscription)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")
 def test_real_simulation_contact_images(one_thread) -> None:

@@ -12,14 +12,6 @@ from tvrecon.sim.mpm_compiled import node_sums, p2g_contrib, polar_fixed, stenci
 from tvrecon.sim.mpm_grid import block_layout
 
 
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 @needs_compiler
 @pytest.mark.parametrize("B", [1, 2])
 def test_fused_p2g_matches_row_scatter(one_thread, B):
