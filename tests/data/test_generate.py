@@ -129,3 +129,24 @@ def test_default_cache_is_the_projects_whatever_the_working_directory(tmp_path: 
     out = capsys.readouterr().out
     assert f"cache: {expected}\n" in out and f"({expected})" in out
     assert not (tmp_path / "data").exists()
+
+
+def test_compile_key_turns_on_the_fused_kernels_for_the_run_only(monkeypatch) -> None:
+    """`compile=true` sets TVRECON_COMPILE for the generation (workers inherit it) and restores it afterwards."""
+    import os
+
+    from tvrecon.data import generate
+
+    seen = []
+    monkeypatch.setattr(
+        generate,
+        "pregenerate",
+        lambda ds, **kw: seen.append(os.environ.get("TVRECON_COMPILE")) or generate.GenerateStats(),
+    )
+    monkeypatch.delenv("TVRECON_COMPILE", raising=False)
+    generate.main([*ARGS, "splits=train", "workers=1", "compile=true"])
+    generate.main([*ARGS, "splits=train", "workers=1", "compile=False"])
+    generate.main([*ARGS, "splits=train", "workers=1"])
+    assert seen == ["1", "0", None] and "TVRECON_COMPILE" not in os.environ
+    with pytest.raises(ValueError, match="compile must be true or false, got 'fast'"):
+        generate.main([*ARGS, "compile=fast"])
