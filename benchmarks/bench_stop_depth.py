@@ -12,15 +12,18 @@ physical force at every grid (the threshold rule's stops at 128 and 256, 0.00273
 and 1.250e-2). At the default 0.1 c_p the force at first contact is an impact peak (1.6e-2 to 2.1e-2) followed by
 a plateau near 1.25e-2, so a force at the threshold stop's (0.0127) stops at the third step in contact at every
 grid; the default 0.03 is above both.
-``--contact grid`` presses with the default grid contact.
+``--contact grid`` presses with the default grid contact; ``--speed-fraction`` sets the hand speed (default 0.1 c_p).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256                   # the default step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --dt-factor 0.25  # 4x smaller step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 --dt-factor 0.25 --iterations 6 --spacing 0.25
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --rule force      # a force stop
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --contact grid    # grid contact
+    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --speed-fraction 0.03 \\
+        --rule force --force 0.0098                                                              # a slower press
 
-``docs/physics.md`` ("Why n_grid 64 stops 18% deeper", "A stop at one force") has the numbers.
+``docs/physics.md`` ("Why n_grid 64 stops 18% deeper", "A stop at one force", "The same stops at 0.03 c_p") has the
+numbers.
 """
 
 from __future__ import annotations
@@ -67,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--contact", choices=("particle", "grid"), default="particle")
     ap.add_argument("--rule", choices=("threshold", "force"), default="threshold", help="the stop rule")
     ap.add_argument("--force", type=float, default=FORCE, help="--rule force: normal force at the stop, domain units")
+    ap.add_argument("--speed-fraction", type=float, default=0.1, help="hand speed / the P-wave speed")
     args = ap.parse_args(argv)
     particle_contact.ITERATIONS = args.iterations  # read at every step
 
@@ -79,14 +83,17 @@ def main(argv: list[str] | None = None) -> int:
         s = pad(n, args.spacing, args.thick_div)
         dt = args.dt_factor * cfl_dt(MPMConfig(n_grid=n, E=s.E, nu=s.nu, rho=s.rho))
         t0 = time.process_time()
-        r = EIPSimulator(s, PressConfig(n_grid=n, contact=args.contact, dt=dt, **stop)).press(mesh, pos, direction)
+        r = EIPSimulator(
+            s, PressConfig(n_grid=n, contact=args.contact, dt=dt, speed_fraction=args.speed_fraction, **stop)
+        ).press(mesh, pos, direction)
         fn = float(-(r.force.double() @ torch.tensor(direction, dtype=torch.float64)))  # normal force on the pad
         rows.append((n, r.depth, r.depth / n, fn, r.image / n, r.steps, time.process_time() - t0))
     base, img_f = rows[-1][2], rows[-1][4]
     print(
         f"{args.contact} contact, stop: {args.rule} "
         f"({'threshold_grid 128' if args.rule == 'threshold' else f'force {args.force:g}'}), dt x {args.dt_factor:g}, "
-        f"{args.iterations} contact passes, spacing {args.spacing:g}, pad 1/{args.thick_div} thick"
+        f"{args.iterations} contact passes, spacing {args.spacing:g}, pad 1/{args.thick_div} thick, "
+        f"speed {args.speed_fraction:g} c_p"
     )
     print(
         "| n_grid | depth (cells) | depth (domain) | / finest | normal force, last step | normal corr. | shear corr. "
