@@ -6,9 +6,16 @@ test reads them. The exponents are log-log fits over the hold depths; the ratios
 
     OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size small --out outputs/bench_hertz_static
     OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size issue --offsets 0.25   # one offset, ~4 CPU-min
+    OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size issue --contact grid --offsets 0.25 --out DIR
     OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size tiny --out /tmp/bhs      # smoke run
 
-``docs/physics.md`` (section "Why the default speed misses Hertz") has the numbers.
+``--out`` gets the table (``hertz_static.md``), ``hertz_static.json``, the plot and the per-step traces
+(``hertz_static_traces.npz``: offsets, depth, force, radius, hold), from which one-offset runs can be plotted
+together::
+
+    python benchmarks/bench_hertz_static.py --combine DIR0 DIR1 DIR2 DIR3 --out DIR   # the table and plot of them all
+
+``docs/physics.md`` (section "Why 0.1 c_p misses Hertz, and the reading at rest") has the numbers.
 """
 
 from __future__ import annotations
@@ -131,6 +138,44 @@ def plot(r: SlabPress, res: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def combine(dirs: list[Path], out: Path) -> None:
+    """The table and plot of several ``--out`` folders (one-offset runs of one scene) together, into ``out``."""
+    runs = [(json.loads((d / "hertz_static.json").read_text()), np.load(d / "hertz_static_traces.npz")) for d in dirs]
+    S = max(t["depth"].shape[1] for _, t in runs)
+
+    def stack(key: str, fill: float) -> np.ndarray:  # runs of different step counts, padded
+        return np.concatenate(
+            [np.pad(t[key], ((0, 0), (0, S - t[key].shape[1])), constant_values=fill) for _, t in runs]
+        )
+
+    res = dict(runs[0][0])
+    res["rows"] = [row for r, _ in runs for row in r["rows"]]
+    res["particles"] = sum(r["particles"] for r, _ in runs)
+    res["steps"] = max(r["steps"] for r, _ in runs)
+    res["cpu_s"] = sum(r["cpu_s"] for r, _ in runs)
+    c = res["scene"]
+    r = SlabPress(
+        depth=stack("depth", np.nan),
+        force=stack("force", np.nan),
+        radius=stack("radius", np.nan),
+        area_radius=stack("radius", np.nan),  # not plotted
+        offsets=[o for _, t in runs for o in t["offsets"].tolist()],
+        dx=1.0 / c["n_grid"],
+        E=E0,
+        nu=NU0,
+        R=c["R"],
+        thick=c["thick"],
+        particles=res["particles"],
+        steps=res["steps"],
+        hold=stack("hold", -1),
+    )
+    text = table(res) + f" (sums over {len(runs)} runs)"
+    print(text)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "hertz_static.md").write_text(text + "\n")
+    plot(r, res, out / "hertz_static.png")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", choices=sorted(SIZES), default="small")
@@ -138,7 +183,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--contact", choices=("particle", "grid"), default="particle")
     ap.add_argument("--speed-fraction", type=float, default=0.1, help="hand speed between holds / P-wave speed")
     ap.add_argument("--out", type=Path, default=None, help="folder for the table, JSON and plot")
+    ap.add_argument("--combine", type=Path, nargs="+", default=None, help="plot these --out folders together")
     args = ap.parse_args(argv)
+    if args.combine:
+        combine(args.combine, args.out if args.out is not None else Path("."))
+        return 0
     size = SIZES[args.size]
     t0 = time.process_time()
     r = slab_press(
@@ -170,6 +219,15 @@ def main(argv: list[str] | None = None) -> int:
         (args.out / "hertz_static.md").write_text(text + "\n")
         (args.out / "hertz_static.json").write_text(json.dumps(res, indent=1))
         plot(r, res, args.out / "hertz_static.png")
+        # the per-step traces, to plot one-offset runs together
+        np.savez_compressed(
+            args.out / "hertz_static_traces.npz",
+            offsets=np.asarray(r.offsets),
+            depth=r.depth,
+            force=r.force,
+            radius=r.radius,
+            hold=r.hold,
+        )
     return 0
 
 

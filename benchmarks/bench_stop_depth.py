@@ -1,13 +1,29 @@
 """Depth at the physical stop across n_grid, one discretization changed at a time (issue 15 item 1).
 
 The gear press of ``bench_physics.py`` section 4 (``scaled_pad``: the same physical pad at every n_grid) with
-``contact="particle"`` and ``threshold_grid=128``; prints the stop depth per n_grid and its ratio to the finest.
+``contact="particle"`` and ``threshold_grid=128``; prints the stop depth per n_grid and its ratio to the finest, the
+normal force at the stop, and the correlation of each stop image with the finest grid's (the finer image
+average-pooled onto the coarser pixels, both in domain units; ``bench_physics.py`` section 4's method).
+
+``--rule force`` stops the same press with ``PressConfig.force`` instead (the normal contact force, mean of the last
+3 steps, reaches ``--force``). ``MLSMPM.last_force`` is in domain units at every n_grid (particle mass ``rho *
+(spacing * dx)^3`` with ``dx = 1 / n_grid``, velocities in domains / s, ``dt`` in s), so one ``--force`` is one
+physical force at every grid (the threshold rule's stops at 128 and 256, 0.00273 and 0.00266 deep, feel 1.271e-2
+and 1.250e-2). At the default 0.1 c_p the force at first contact is an impact peak (1.6e-2 to 2.1e-2) followed by
+a plateau near 1.25e-2, so a force at the threshold stop's (0.0127) stops at the third step in contact at every
+grid; the default 0.03 is above both.
+``--contact grid`` presses with the default grid contact; ``--speed-fraction`` sets the hand speed (default 0.1 c_p).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256                   # the default step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --dt-factor 0.25  # 4x smaller step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 --dt-factor 0.25 --iterations 6 --spacing 0.25
+    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --rule force      # a force stop
+    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --contact grid    # grid contact
+    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --speed-fraction 0.03 \\
+        --rule force --force 0.0098                                                              # a slower press
 
-``docs/physics.md`` ("Why n_grid 64 stops 18% deeper") has the numbers.
+``docs/physics.md`` ("Why n_grid 64 stops 18% deeper", "A stop at one force", "The same stops at 0.03 c_p") has the
+numbers.
 """
 
 from __future__ import annotations
@@ -15,12 +31,16 @@ from __future__ import annotations
 import argparse
 import time
 
-from bench_physics import scaled_pad
+import torch
+from bench_physics import _corr, scaled_pad
 
 from tvrecon.sim import particle_contact
 from tvrecon.sim.mpm import MPMConfig, cfl_dt
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import SensorConfig
+
+#: ``--rule force`` default: normal contact force at the stop, domain units (see the module docstring)
+FORCE = 0.03
 
 
 def pad(n_grid: int, spacing: float, thick_div: int) -> SensorConfig:
@@ -29,6 +49,13 @@ def pad(n_grid: int, spacing: float, thick_div: int) -> SensorConfig:
         return scaled_pad(n_grid)
     f = int(round(0.5 / spacing))
     return SensorConfig(resolution=(n_grid // 2 * f,) * 2, layers=(n_grid // thick_div) * f + 1, spacing=spacing)
+
+
+def pooled_corr(coarse: torch.Tensor, fine: torch.Tensor) -> tuple[float, float]:
+    """(normal, shear) correlation of two (3, H, W) images in domain units, ``fine`` average-pooled onto ``coarse``."""
+    k = fine.shape[-1] // coarse.shape[-1]
+    f = torch.nn.functional.avg_pool2d(fine[None], k)[0] if k > 1 else fine
+    return _corr(coarse[2], f[2]), _corr(coarse[:2], f[:2])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,30 +67,43 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--iterations", type=int, default=particle_contact.ITERATIONS, help="contact passes per step")
     ap.add_argument("--spacing", type=float, default=0.5, help="particle spacing, cells")
     ap.add_argument("--thick-div", type=int, default=16, help="pad thickness = domain / this")
+    ap.add_argument("--contact", choices=("particle", "grid"), default="particle")
+    ap.add_argument("--rule", choices=("threshold", "force"), default="threshold", help="the stop rule")
+    ap.add_argument("--force", type=float, default=FORCE, help="--rule force: normal force at the stop, domain units")
+    ap.add_argument("--speed-fraction", type=float, default=0.1, help="hand speed / the P-wave speed")
     args = ap.parse_args(argv)
     particle_contact.ITERATIONS = args.iterations  # read at every step
 
     mesh = load_shape("gear")
     direction = [0.0, 0.0, -1.0]
     pos = EIPSimulator(scaled_pad(128), PressConfig(n_grid=128)).touch_position(mesh, direction)
+    stop = {"threshold_grid": 128} if args.rule == "threshold" else {"force": args.force}
     rows = []
     for n in args.grids:
         s = pad(n, args.spacing, args.thick_div)
         dt = args.dt_factor * cfl_dt(MPMConfig(n_grid=n, E=s.E, nu=s.nu, rho=s.rho))
         t0 = time.process_time()
-        r = EIPSimulator(s, PressConfig(n_grid=n, contact="particle", threshold_grid=128, dt=dt)).press(
-            mesh, pos, direction
-        )
-        rows.append((n, r.depth, r.depth / n, r.steps, time.process_time() - t0))
-    base = rows[-1][2]
+        r = EIPSimulator(
+            s, PressConfig(n_grid=n, contact=args.contact, dt=dt, speed_fraction=args.speed_fraction, **stop)
+        ).press(mesh, pos, direction)
+        fn = float(-(r.force.double() @ torch.tensor(direction, dtype=torch.float64)))  # normal force on the pad
+        rows.append((n, r.depth, r.depth / n, fn, r.image / n, r.steps, time.process_time() - t0))
+    base, img_f = rows[-1][2], rows[-1][4]
     print(
-        f"dt x {args.dt_factor:g}, {args.iterations} contact passes, spacing {args.spacing:g}, "
-        f"pad 1/{args.thick_div} thick"
+        f"{args.contact} contact, stop: {args.rule} "
+        f"({'threshold_grid 128' if args.rule == 'threshold' else f'force {args.force:g}'}), dt x {args.dt_factor:g}, "
+        f"{args.iterations} contact passes, spacing {args.spacing:g}, pad 1/{args.thick_div} thick, "
+        f"speed {args.speed_fraction:g} c_p"
     )
-    print("| n_grid | depth (cells) | depth (domain) | / finest | steps | CPU-s |")
-    print("| --- | --- | --- | --- | --- | --- |")
-    for n, dc, dd, steps, cpu in rows:
-        print(f"| {n} | {dc:.4f} | {dd:.5f} | {dd / base:.2f} | {steps} | {cpu:.1f} |")
+    print(
+        "| n_grid | depth (cells) | depth (domain) | / finest | normal force, last step | normal corr. | shear corr. "
+        "| steps | CPU-s |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for n, dc, dd, fn, img, steps, cpu in rows:
+        cn, cs = pooled_corr(img, img_f) if n != rows[-1][0] else (1.0, 1.0)
+        rel = dd / base if base > 0 else float("nan")
+        print(f"| {n} | {dc:.4f} | {dd:.5f} | {rel:.2f} | {fn:.3e} | {cn:.3f} | {cs:.3f} | {steps} | {cpu:.1f} |")
     return 0
 
 
