@@ -1,6 +1,7 @@
 """The opt-in ``torch.compile`` path with particle contact (``MPMConfig(contact="particle")``): the compiled P2G and
-grid update, then the eager particle contact and G2P (``mpm_fused._particle_contact``), equal to the eager step to
-float32 round-off. Tolerances as in test_mpm_compile.py (grid contact).
+grid update, the eager contact passes (``mpm_fused._particle_contact``), then the compiled G2P, equal to the eager
+step to float32 round-off. Tolerances as in test_mpm_compile.py (grid contact) where the contact does not amplify
+the round-off (see the first test).
 
 Marked slow: compiling the kernels takes ~10-40 s on one CPU core. Skipped where inductor cannot compile.
 """
