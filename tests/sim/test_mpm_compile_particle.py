@@ -10,7 +10,8 @@ import pytest
 import torch
 from test_mpm_compile import _press, needs_compiler
 
-from tvrecon.sim import mpm_fused
+from tvrecon.sim import mpm_compiled, mpm_fused
+from tvrecon.sim.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig
 
 #: the pad's centre 1 cell above the sphere (its bottom layer 0.25 cells): particle contact starts when the particles
@@ -80,3 +81,33 @@ def test_compiled_particle_contact_press_images_match_eager(monkeypatch):
     assert ref.contact and ref.image.abs().max() > 0.1 and ref.steps == new.steps
     assert (new.image - ref.image).abs().max() <= 1e-4
     torch.testing.assert_close(new.force, ref.force, rtol=1e-5, atol=1e-7)
+
+
+def test_particle_contact_compile_failure_falls_back_to_eager(monkeypatch):
+    """A kernel failing in a particle-contact step after the contact passes ran (G2P) leaves the eager step's result
+    and readings, bit for bit, and the solver eager from then on. The kernels run uncompiled here (plain functions)."""
+    from tvrecon.sim.mpm_compiled_grid import grid_collide
+
+    def g2p_fails(*args):
+        raise RuntimeError("no compiler here")
+
+    kernels = mpm_compiled.CompiledKernels()
+    plain = {"stencil": mpm_compiled.stencil_weights, "index": mpm_compiled.block_index, "grid": grid_collide}
+    plain.update(polar=mpm_compiled.polar_fixed, p2g=mpm_compiled.p2g_contrib, g2p=g2p_fails)
+    monkeypatch.setattr(mpm_compiled, "_KERNELS", kernels)
+    monkeypatch.setattr(kernels, "_fns", plain)
+    cfg = MPMConfig(n_grid=32, contact="particle")
+    eager = MLSMPM(cfg)
+    state, f = _press(eager, 12, lift=LIFT)
+    assert f[-1].abs().max() > 0, "the last step must touch"
+    comp = MLSMPM(cfg, compile=True)
+    col, hand = SphereCollider((0.5, 0.5, 0.4), 0.2), torch.tensor([0.0, 0.0, -0.3])
+    alpha = state.F.new_ones(len(state.x))
+    with pytest.warns(RuntimeWarning, match="eager"):
+        s_new = comp.step(state, collider=col, hand_velocity=hand, alpha=alpha)
+    assert not comp.compiled
+    s_ref = eager.step(state, collider=col, hand_velocity=hand, alpha=alpha)
+    for name in ("x", "v", "C", "F"):
+        assert torch.equal(getattr(s_new, name), getattr(s_ref, name)), name
+    assert eager.last_force.abs().max() > 0 and torch.equal(comp.last_force, eager.last_force)
+    assert torch.equal(comp.last_particle_force(state.mass), eager.last_particle_force(state.mass))
