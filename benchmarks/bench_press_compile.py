@@ -1,13 +1,15 @@
 """Paper-preset touches pressed eager and with ``EIPSimulator(compile=True)``, in one process (not a test).
 
     OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_compile.py [--touches 4] [--first 0]
+        [--contact grid|particle]
 
 Each touch (one class of ``available_classes()`` each, from ``--first``, seeded cone-policy touch, paper preset: 64x64x6
 pad, n_grid 128) is pressed by the eager solver and by the fused ``torch.compile`` kernels (issue 13 step 2),
 alternating which goes first, on one thread. The first compiled press (the compile) is timed apart. Prints per touch
 the CPU seconds of both, their ratio and how far the readings are apart (the compiled step equals the eager one to
 float32 round-off, not bit for bit); then the median and total ratio. Only ratios from one process mean something
-on a loaded machine.
+on a loaded machine. ``--contact particle`` presses with ``PressConfig(contact="particle")`` (compiled: P2G and the
+grid update fused, the contact passes and G2P eager).
 """
 
 from __future__ import annotations
@@ -32,9 +34,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--touches", type=int, default=4, help="touches, one class each")
     parser.add_argument("--first", type=int, default=0, help="index of the first class")
+    parser.add_argument("--contact", choices=("grid", "particle"), default="grid", help="PressConfig.contact")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    sensor, press = SensorConfig(resolution=(64, 64), layers=6), PressConfig(n_grid=128)
+    sensor, press = SensorConfig(resolution=(64, 64), layers=6), PressConfig(n_grid=128, contact=args.contact)
     sims = {False: EIPSimulator(sensor, press, compile=False), True: EIPSimulator(sensor, press, compile=True)}
     classes = available_classes()
     jobs = []
@@ -48,7 +51,7 @@ def main() -> None:
     c0, t0 = time.process_time(), time.perf_counter()
     sims[True].press(mesh, pos, d, **kw)  # compiles (inductor's on-disk cache may shorten it)
     print(
-        f"torch {torch.__version__}, 1 thread, paper preset; first compiled press (compile): "
+        f"torch {torch.__version__}, 1 thread, paper preset, {args.contact} contact; first compiled press (compile): "
         f"{time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} CPU-s"
     )
     ratios, tot = [], {False: 0.0, True: 0.0}

@@ -22,10 +22,12 @@ needs_compiler = pytest.mark.skipif(
 )
 
 
-def _press(solver: MLSMPM, steps: int, batched: bool = False, dtype: torch.dtype = torch.float32):
+def _press(solver: MLSMPM, steps: int, batched: bool = False, dtype: torch.dtype = torch.float32, lift: float = 2.0):
+    """The pad (centre ``lift`` cells above the sphere's top) pressed for ``steps`` steps; the state, (steps, B, 3)
+    forces."""
     n_grid = solver.cfg.n_grid
     dx = 1.0 / n_grid
-    x, alpha, vol = make_pad(nx=10, ny=10, nz=4, n_grid=n_grid, center=(0.5, 0.5, 0.6 + 2.0 * dx), dtype=dtype)
+    x, alpha, vol = make_pad(nx=10, ny=10, nz=4, n_grid=n_grid, center=(0.5, 0.5, 0.6 + lift * dx), dtype=dtype)
     col = SphereCollider((0.5, 0.5, 0.4), 0.2)
     hand = torch.tensor([0.0, 0.0, -0.3], dtype=dtype)
     batch = None

@@ -179,7 +179,7 @@ class MLSMPM:
             (:mod:`tvrecon.sim.mpm_compiled`; equal to the eager step to float32 round-off, not bit for bit). None
             (default) -> on when the environment variable ``TVRECON_COMPILE`` is ``1``. Steps that need autograd
             always run eager; when compiling fails the solver warns once and goes on eager. A compiled step returns
-            x, v, C, F as transposed views of channel-first buffers (same values; ``mpm_fused.CF_VIEWS``).
+            x, v, C, F as channel-first views (``mpm_fused.CF_VIEWS``); the particle contact's passes run eager.
 
     After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
     (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;
@@ -303,7 +303,7 @@ class MLSMPM:
         if self._needs_grad(state, hand_velocity, alpha):
             return self._step(state, colliders, hand_velocity, alpha, B, block)
         with torch.no_grad():
-            if self._kernels is not None and self.cfg.contact == "grid":  # opt-in fused kernels (compile=True)
+            if self._kernels is not None:  # opt-in fused kernels (compile=True)
                 try:
                     return fused_step(self, state, colliders, hand_velocity, alpha, B, block)
                 except CompileFailed:

@@ -11,8 +11,10 @@ the ``(N, 4)`` grid (:mod:`.mpm_scatter`; paper touches ~1.3x faster in one proc
 G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
 node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
-without a copy. The reading's force field (``MLSMPM.last_particle_force``) is one compiled gather too
-(:func:`particle_force`).
+without a copy. With ``MPMConfig(contact="particle")`` the grid update has no colliders; the eager contact passes of
+:func:`tvrecon.sim.particle_contact.particle_contact_grid` then correct the grid velocities before the compiled G2P.
+The reading's force field (``MLSMPM.last_particle_force``) is one compiled gather too (:func:`particle_force`; with
+particle contact, the contact's own particle forces).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from .mpm_compiled import CompileFailed
 from .mpm_compiled_grid import ColliderFields
 from .mpm_grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed, share_node_force
 from .mpm_scatter import fused_p2g, p2g_grid_available
+from .particle_contact import particle_contact_grid
 
 if TYPE_CHECKING:
     from .mpm import MLSMPM, ParticleState
@@ -121,7 +124,10 @@ def fused_step(
             n = min(chunk, P - s0)
             contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
             G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
-    gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
+    if solver.cfg.contact == "particle":  # opt-in: the grid without colliders, then the eager particle contact
+        gv = _particle_contact(solver, state, G, st, colliders, hand_velocity, alpha, B, block).contiguous()
+    else:
+        gv = _grid_update(solver, G, colliders, st).contiguous()  # (N, 3)
     o_int = solver._constants(dtype, device)[2]  # (27, 3) int64 stencil offsets
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
     runs = gv.as_strided((gv.shape[0] - 2, 9), (3, 1))  # row n: nodes n, n+1, n+2 (a view; base + 2 S0 + 2 S1 < N - 2)
@@ -135,6 +141,26 @@ def fused_step(
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
     xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return _cf_state(state, xn, vn, Cn, Fn)
+
+
+def _particle_contact(
+    solver: MLSMPM,
+    state: ParticleState,
+    G: Tensor,
+    st: Stencil,
+    colliders: list[Collider | None],
+    hand_velocity: Tensor | None,
+    alpha: Tensor | None,
+    B: int,
+    block: int | None,
+) -> Tensor:
+    """The grid side of a compiled step with ``MPMConfig(contact="particle")``, in :meth:`MLSMPM._step`'s order: the
+    compiled grid update without colliders (paper eq. 7), then the eager contact passes of
+    :func:`tvrecon.sim.particle_contact.particle_contact_grid`, which set ``last_force`` and the particle forces. G:
+    the P2G sums, (N, 4) or (N, 108) rows; st: the fused stencil (w (27, P), the eager ``lin``, ``D`` and ``lo``).
+    Returns the corrected (N, 3) grid velocities for the compiled G2P."""
+    gv = _grid_update(solver, G, [None] * B, st).contiguous()  # (N, 3)
+    return particle_contact_grid(solver, state, st, gv, colliders, hand_velocity, alpha, B, block)
 
 
 def particle_force(solver: MLSMPM, transfer: Transfer, mass: Tensor) -> Tensor:

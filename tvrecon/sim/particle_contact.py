@@ -47,6 +47,7 @@ __all__ = [
     "collide_particles",
     "contact_velocity",
     "near_surface",
+    "particle_contact_grid",
     "particle_contact_step",
     "scene_slices",
     "stencil_nodes",
@@ -202,17 +203,36 @@ def particle_contact_step(
     B: int,
     block: int | None,
 ) -> ParticleState:
-    """G2P (paper eq. 8-11) with the rigid bodies acting on the particles; sets ``solver.last_force`` (B, 3) and the
-    (P, 3) particle forces that ``solver.last_particle_force`` returns.
+    """G2P (paper eq. 8-11) with the rigid bodies acting on the particles: :func:`particle_contact_grid`, then
+    ``solver._g2p`` of the corrected grid. Arguments as :func:`particle_contact_grid`; returns the new state."""
+    gv = particle_contact_grid(solver, state, st, gv, colliders, hand_velocity, alpha, B, block)
+    return solver._g2p(state, st, gv, hand_velocity, alpha)
+
+
+def particle_contact_grid(
+    solver: MLSMPM,
+    state: ParticleState,
+    st: Stencil,
+    gv: Tensor,
+    colliders: Sequence[Collider | None],
+    hand_velocity: Tensor | None,
+    alpha: Tensor | None,
+    B: int,
+    block: int | None,
+) -> Tensor:
+    """The rigid bodies' impulses on the particles, applied through the grid velocities ``gv`` (N, 3) before G2P
+    (paper eq. 8-11); returns the corrected (N, 3) grid velocities and sets ``solver.last_force`` (B, 3) and the
+    (P, 3) particle forces that ``solver.last_particle_force`` returns. ``st``: the step's stencil (its ``w`` (27, P),
+    ``lin`` and ``D``); ``solver._last_transfer.node_mass``: the (N,) grid mass.
 
     Only the particles within a cell of a body can reach it in one step (the grid moves less than a cell per step):
     :func:`near_surface` finds them and their signed distances and normals once. Then ``ITERATIONS`` times: gather
     their velocity (eq. 8) from the grid velocities ``gv`` (N, 3); :func:`contact_velocity` gives the impulse ``J_p =
     m_p dv_p`` that keeps each out of the bodies (and moves one found inside back out by ``PUSH_OUT`` of its depth);
-    scatter the impulses to the grid like momentum (eq. 6): ``v_i += sum_p w_ip J_p / m_i``. Then G2P of the
-    corrected grid (eq. 8-11). A particle with ``alpha_p < 1`` follows the grid only in part (eq. 8), so its impulse
-    is ``alpha_p J_p``: the rigid hand (``alpha = 0``) is not held by the object (its impulse could never reach it and
-    would pile up on the grid).
+    scatter the impulses to the grid like momentum (eq. 6): ``v_i += sum_p w_ip J_p / m_i``. The caller then runs
+    G2P of the corrected grid (eq. 8-11). A particle with ``alpha_p < 1`` follows the grid only in part (eq. 8), so
+    its impulse is ``alpha_p J_p``: the rigid hand (``alpha = 0``) is not held by the object (its impulse could never
+    reach it and would pile up on the grid).
 
     The impulse acts through the grid, like any external force, so a held particle's ``C`` (eq. 9) and ``F`` (eq. 11)
     see the held velocity field. (Correcting the particle velocities alone leaves the grid below a held particle free:
@@ -249,4 +269,4 @@ def particle_contact_step(
             total = total + f
     solver.last_force = gv.new_zeros(B, 3).index_add(0, scene, total)
     solver._particle_contact_force = gv.new_zeros(P, 3).index_add(0, cand, total.detach())
-    return solver._g2p(state, st, gv, hand_velocity, alpha)
+    return gv
