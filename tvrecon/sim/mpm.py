@@ -36,7 +36,7 @@ from .mpm_grid import (
     shift_nodes,
     stencil_offsets,
 )
-from .particle_contact import CONTACT_MODES, particle_contact_step
+from .particle_contact import CONTACT_MODES, particle_contact_grid
 
 __all__ = ["MPMConfig", "ParticleState", "MLSMPM", "cfl_dt"]
 
@@ -324,8 +324,9 @@ class MLSMPM:
         grid = self._p2g(state, st)
         if self.cfg.contact == "particle":  # opt-in: the colliders act on the particles (particle_contact.py)
             gv = self._grid_update(grid, [None] * B, st)
-            return particle_contact_step(self, state, st, gv, colliders, hand_velocity, alpha, B, block)
-        gv = self._grid_update(grid, colliders, st)
+            gv = particle_contact_grid(self, state, st, gv, colliders, hand_velocity, alpha, B, block)
+        else:
+            gv = self._grid_update(grid, colliders, st)
         return self._g2p(state, st, gv, hand_velocity, alpha)
 
     def _stencil(self, state: ParticleState, B: int, block: int | None = None) -> Stencil:

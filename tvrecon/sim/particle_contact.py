@@ -12,7 +12,7 @@ with the signed distance evaluated exactly at them, and its impulse is applied t
   sent back out by ``PUSH_OUT`` of its depth: ``v_n' = max(v_n, min(-PUSH_OUT phi / dt, PUSH_CAP_CELLS dx / dt))``;
 - the tangential velocity loses ``friction * (v_n' - v_n)`` (Coulomb; 0 = frictionless slip, as on the grid);
 - the impulse ``J_p = m_p (v' - v)`` is scattered to the grid with the transfer weights, like the momentum of P2G
-  (paper eq. 6), a few times on what is left, and then G2P runs on the corrected grid (:func:`particle_contact_step`).
+  (paper eq. 6), a few times on what is left, and then G2P runs on the corrected grid (:func:`particle_contact_grid`).
   ``J_p / dt`` is the collider's force on particle p; per scene it sums to ``MLSMPM.last_force``, and momentum is
   conserved as on the grid.
 
@@ -21,7 +21,7 @@ planes, and the contact area grows particle by particle (the pad's spacing, 0.5 
 grid-mediated particle impulse of the contact literature (particle-level detection with the response through the
 grid, cf. the penalty contacts of DiffTactile and the particle-grid compatibility of MLS-MPM's CPIC, Hu et al.
 2018): detecting on particles but correcting only their velocities would leave the grid free below them (see
-:func:`particle_contact_step`). Everything is torch, batched over scenes (each scene's particles meet only its own
+:func:`particle_contact_grid`). Everything is torch, batched over scenes (each scene's particles meet only its own
 collider), device-agnostic and differentiable where the collider's ``sdf`` and ``normal`` are (the analytic ones,
 and ``MeshCollider`` by trilinear interpolation). It adds an sdf query of every particle and small gather/scatter
 passes over the particles within a cell of a body; the grid collider's sdf query of every block node is skipped.
@@ -48,7 +48,6 @@ __all__ = [
     "contact_velocity",
     "near_surface",
     "particle_contact_grid",
-    "particle_contact_step",
     "scene_slices",
     "stencil_nodes",
 ]
@@ -66,7 +65,7 @@ PUSH_OUT = 0.5
 #: comes out over several steps instead of being shot out).
 PUSH_CAP_CELLS = 0.05
 
-#: Jacobi passes of the grid-mediated particle impulse per step (:func:`particle_contact_step`).
+#: Jacobi passes of the grid-mediated particle impulse per step (:func:`particle_contact_grid`, then G2P).
 ITERATIONS = 3
 
 
@@ -190,23 +189,6 @@ def stencil_nodes(st: Stencil) -> Tensor:
     S0, S1 = st.D[1] * st.D[2], st.D[2]
     o = stencil_offsets(st.lin.device, torch.int64)  # (27, 3)
     return st.lin[None, :] + (o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2])[:, None]
-
-
-def particle_contact_step(
-    solver: MLSMPM,
-    state: ParticleState,
-    st: Stencil,
-    gv: Tensor,
-    colliders: Sequence[Collider | None],
-    hand_velocity: Tensor | None,
-    alpha: Tensor | None,
-    B: int,
-    block: int | None,
-) -> ParticleState:
-    """G2P (paper eq. 8-11) with the rigid bodies acting on the particles: :func:`particle_contact_grid`, then
-    ``solver._g2p`` of the corrected grid. Arguments as :func:`particle_contact_grid`; returns the new state."""
-    gv = particle_contact_grid(solver, state, st, gv, colliders, hand_velocity, alpha, B, block)
-    return solver._g2p(state, st, gv, hand_velocity, alpha)
 
 
 def particle_contact_grid(
