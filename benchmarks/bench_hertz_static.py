@@ -33,6 +33,7 @@ from tvrecon.sim.validation import (
     draw_contact_theory,
     hertz_force,
     hertz_radius,
+    label_contact_axes,
     slab_press,
     winkler_force,
     winkler_radius,
@@ -129,10 +130,7 @@ def plot(r: SlabPress, res: dict, path: Path) -> None:
         ax[1].plot(r.depth[b], r.radius[b], lw=0.6, alpha=0.5)
         ax[1].plot(row["depths"], row["a_holds"], "o")
     draw_contact_theory(ax, E0, NU0, R, h, dx, dd)
-    ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title="force: every step (lines), at rest (dots)")
-    ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius", xlim=(-0.2, None))
-    ax[0].legend(fontsize=7)
-    ax[1].legend(fontsize=7)
+    label_contact_axes(ax, "force: every step (lines), at rest (dots)", radius_xmin=-0.2)
     fig.tight_layout()
     fig.savefig(path, dpi=72)
     plt.close(fig)

@@ -33,6 +33,7 @@ from tvrecon.sim.validation import (
     free_slab_impact,
     hertz_force,
     hertz_radius,
+    label_contact_axes,
     loglog_slope,
     slab_press,
     winkler_force,
@@ -296,11 +297,7 @@ def _plot_hertz(plt, H: dict, path: Path) -> None:
     ax[0].loglog(thick.depth[0][m], thick.force[0][m] / unit, "k--", label=f"h={thick.thick:g} (half-space ref.)")
     ax[1].plot(thick.depth[0], thick.radius[0], "k--", label=f"h={thick.thick:g}")
     draw_contact_theory(ax, E0, NU0, R, h, dx, dd)
-    title = f"force, sphere R={R:g} cells, {H['contact']} contact"
-    ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title=title, ylim=(1e-1, None))
-    ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius", xlim=(-1.5, None))
-    ax[0].legend(fontsize=7)
-    ax[1].legend(fontsize=7)
+    label_contact_axes(ax, f"force, sphere R={R:g} cells, {H['contact']} contact", radius_xmin=-1.5, force_ymin=1e-1)
     fig.tight_layout()
     fig.savefig(path, dpi=72)
     plt.close(fig)

@@ -137,3 +137,21 @@ def test_contact_theory_curves_are_the_reference_formulas() -> None:
     np.testing.assert_allclose(ax[1].lines[1].get_ydata(), winkler_radius(8.0, d))
     assert [ln.get_label() for ln in ax[0].lines] == ["Hertz (half-space)", "thin layer h=4"]
     plt.close(fig)
+
+
+def test_label_contact_axes_names_both_panels_and_their_limits():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tvrecon.sim.validation import draw_contact_theory, label_contact_axes
+
+    fig, ax = plt.subplots(1, 2)
+    draw_contact_theory(ax, 3.0, 0.25, 8.0, 4.0, 0.01, np.linspace(0.1, 2.0, 5))
+    label_contact_axes(ax, "force, sphere", radius_xmin=-0.5, force_ymin=1e-1)
+    assert ax[0].get_title() == "force, sphere" and ax[1].get_title() == "contact radius"
+    assert ax[0].get_ylabel() == "F / (E* dx^2)" and ax[1].get_ylabel() == "contact radius a (cells)"
+    assert ax[0].get_ylim()[0] == 1e-1 and ax[1].get_xlim()[0] == -0.5
+    assert [t.get_text() for t in ax[1].get_legend().get_texts()] == ["Hertz sqrt(R d)", "thin layer sqrt(2 R d)"]
+    plt.close(fig)

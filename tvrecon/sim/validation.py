@@ -92,6 +92,21 @@ def draw_contact_theory(ax: Any, E: float, nu: float, R: float, h: float, dx: fl
     ax[1].plot(depths, winkler_radius(R, depths), "r:", lw=2, label="thin layer sqrt(2 R d)")
 
 
+def label_contact_axes(ax: Any, force_title: str, radius_xmin: float, force_ymin: float | None = None) -> None:
+    """Axis labels, titles, limits and legends of a (force, radius) pair of axes drawn with :func:`draw_contact_theory`
+    (call it after every line is drawn).
+
+    Args:
+        ax: the two axes. force_title: the force panel's title. radius_xmin: the radius panel's smallest depth (cells).
+        force_ymin: the force panel's lowest F / (E* dx^2), or None (matplotlib's).
+    """
+    ax[0].set(xlabel="depth d (cells)", ylabel="F / (E* dx^2)", title=force_title, ylim=(force_ymin, None))
+    ax[1].set(xlabel="depth d (cells)", ylabel="contact radius a (cells)", title="contact radius")
+    ax[1].set_xlim(radius_xmin, None)
+    ax[0].legend(fontsize=7)
+    ax[1].legend(fontsize=7)
+
+
 def loglog_slope(x: np.ndarray, y: np.ndarray, lo: float, hi: float) -> float:
     """Least-squares slope of log y vs log x over ``lo <= x <= hi`` and y > 0 (nan with fewer than 3 points)."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
