@@ -6,7 +6,6 @@ import torch
 import trimesh
 
 from tvrecon.sim.colliders import MeshCollider
-from tvrecon.sim.placement import _count_inside
 
 
 def _sphere_collider() -> MeshCollider:
@@ -27,13 +26,13 @@ def test_count_inside_equals_the_plain_count() -> None:
         ((0.8, 0.8, 0.8), 0.1),  # outside the table
     ):
         pts = torch.tensor(lo) + size * torch.rand(500, 3, generator=g)
-        assert _count_inside(col, pts) == int((col.sdf(pts) < 0).sum())
+        assert col.count_inside(pts) == int((col.sdf(pts) < 0).sum())
     above = torch.tensor([0.4, 0.4, 0.58]) + 0.08 * torch.rand(500, 3, generator=g)
     col.sdf = None  # the shortcut decides without interpolating
-    assert _count_inside(col, above) == 0
+    assert col.count_inside(above) == 0
     del col.sdf
     grid = torch.stack(torch.meshgrid(*[torch.linspace(0.3, 0.7, 30)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    assert _count_inside(col, grid) == int((col.sdf(grid) < 0).sum()) > 0
+    assert col.count_inside(grid) == int((col.sdf(grid) < 0).sum()) > 0
 
 
 def test_watertight_flag_gives_the_same_tables() -> None:

@@ -314,15 +314,31 @@ class MeshCollider:
         self.node_sdf = torch.as_tensor(sdf, dtype=torch.float32, device=device)  # (X, Y, Z)
         self.node_normal = torch.as_tensor(grad, dtype=torch.float32, device=device)  # (X, Y, Z, 3)
 
-    def _lookup(self, table: Tensor, points: Tensor) -> Tensor:
-        """Trilinear interpolation of a (X, Y, Z, C) node table at (N, 3) points -> (N, C)."""
+    def _cell(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(N, 3) points -> the (N, 3) int64 table indices of the lower and upper corners of their trilinear cell
+        (clamped to the table) and the (N, 3) float64 position within it."""
         X, Y, Z = self.dims
         g = points.double() / self.dx - self.lo_index.to(points.device)
         hi = torch.tensor([X - 1, Y - 1, Z - 1], dtype=torch.float64, device=points.device)
         g = torch.minimum(torch.clamp(g, min=0.0), hi)
         i0 = torch.minimum(torch.floor(g), torch.clamp(hi - 1, min=0)).long()
-        f = (g - i0).to(points.dtype)
-        i1 = torch.minimum(i0 + 1, hi.long())
+        return i0, torch.minimum(i0 + 1, hi.long()), g - i0
+
+    def count_inside(self, points: Tensor) -> int:
+        """``int((self.sdf(points) < 0).sum())`` for (N, 3) points, without interpolating when no table node of the
+        cells spanned by their bounding box is negative: :meth:`sdf` is a trilinear combination (weights in [0, 1]) of
+        a cell's 8 nodes plus a distance >= 0, and the cell index is monotone in each coordinate."""
+        _check_points(points)
+        lo, hi, _ = self._cell(torch.stack([points.min(0).values, points.max(0).values]))  # (2, 3) each
+        (a0, a1, a2), (b0, b1, b2) = lo[0].tolist(), hi[1].tolist()
+        if bool((self.node_sdf[a0 : b0 + 1, a1 : b1 + 1, a2 : b2 + 1] >= 0).all()):
+            return 0
+        return int((self.sdf(points) < 0).sum())
+
+    def _lookup(self, table: Tensor, points: Tensor) -> Tensor:
+        """Trilinear interpolation of a (X, Y, Z, C) node table at (N, 3) points -> (N, C)."""
+        i0, i1, f = self._cell(points)
+        f = f.to(points.dtype)
         t = table.to(device=points.device, dtype=points.dtype)
         out = 0.0
         for cx in (0, 1):

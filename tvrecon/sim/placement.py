@@ -144,7 +144,7 @@ def place_touch(
         mdom, n_grid=int(p.n_grid), region=(lo, hi), device=device, from_above=True, watertight=mesh.is_watertight
     )
     x_rest = pad_lattice(s, device=device) * dx + torch.tensor([0.5, 0.5, zt + float(p.gap) * dx], device=device)
-    inside = _count_inside(collider, x_rest)
+    inside = collider.count_inside(x_rest)  # no interpolation when no reachable node is inside
     if inside:
         raise ValueError(
             f"the pad would start inside the object ({inside} particles): `direction` {d.tolist()} must point "
@@ -152,25 +152,6 @@ def place_touch(
             "leave the position out (None; the CLI without --position) to let the simulator place the pad"
         )
     return Placement(R=R, origin=origin, direction=d, collider=collider, reachable=True)
-
-
-def _count_inside(collider: _colliders.MeshCollider, points: Tensor) -> int:
-    """``int((collider.sdf(points) < 0).sum())``, without interpolating when no table node that ``points`` (P, 3)
-    can interpolate from is negative.
-
-    ``MeshCollider.sdf`` is a trilinear combination (weights in [0, 1]) of the 8 table nodes around a point plus a
-    distance >= 0, so with no negative node in the index box of the points' corners (the same clamped index
-    arithmetic, which is monotone in each coordinate) no point is inside; otherwise the points are counted.
-    """
-    box = torch.stack([points.min(0).values, points.max(0).values]).double()  # (2, 3)
-    hi = torch.tensor([d - 1 for d in collider.dims], dtype=torch.float64, device=points.device)
-    g = torch.minimum(torch.clamp(box / collider.dx - collider.lo_index.to(points.device), min=0.0), hi)
-    i0 = torch.minimum(torch.floor(g), torch.clamp(hi - 1, min=0)).long()
-    i1 = torch.minimum(i0 + 1, hi.long())
-    (a0, a1, a2), (b0, b1, b2) = i0[0].tolist(), i1[1].tolist()
-    if bool((collider.node_sdf[a0 : b0 + 1, a1 : b1 + 1, a2 : b2 + 1] >= 0).all()):
-        return 0
-    return int((collider.sdf(points) < 0).sum())
 
 
 def touch_position(mesh: trimesh.Trimesh, direction, s: SensorConfig, p: PressConfig) -> Tensor:
