@@ -1,7 +1,7 @@
 """Paper-preset touches pressed by an earlier commit's simulator and by the working tree, in one process (not a test).
 
     OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_ab.py --old REV [--touches 4]
-        [--first 1] [--stride 3] [--eager]
+        [--first 1] [--stride 3] [--eager] [--contact grid|particle]
 
 ``git archive REV tvrecon`` is unpacked into a temporary folder as the package ``tvrecon_old`` (imports renamed), so
 both versions run side by side; each touch (classes ``first + stride * i`` of ``available_classes()``, seeded
@@ -9,7 +9,8 @@ cone-policy touch, paper preset: 64x64x6 pad, n_grid 128) is pressed by both, al
 thread, with ``compile=True`` unless ``--eager``. Prints per touch the CPU seconds, the old/new ratio and the reading
 differences (image in grid cells, relative force; whether the whole reading is bit-identical: :func:`identical`), then
 the median and total ratio. Used for each step of issue 13
-step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine.
+step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine. ``--contact`` sets
+``PressConfig.contact`` of both (the old revision must know the field).
 """
 
 from __future__ import annotations
@@ -65,13 +66,17 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=1, help="index of the first class")
     parser.add_argument("--stride", type=int, default=3, help="class index step between touches")
     parser.add_argument("--eager", action="store_true", help="compare the eager paths (default: compile=True)")
+    parser.add_argument("--contact", choices=("grid", "particle"), default=None, help="PressConfig.contact of both")
     args = parser.parse_args()
     torch.set_num_threads(1)
     comp = not args.eager
     with tempfile.TemporaryDirectory() as tmp:
         op = import_old(args.old, Path(tmp))
-        new = EIPSimulator(SensorConfig(resolution=(64, 64), layers=6), PressConfig(n_grid=128), compile=comp)
-        old = op.EIPSimulator(op.SensorConfig(resolution=(64, 64), layers=6), op.PressConfig(n_grid=128), compile=comp)
+        kw = {} if args.contact is None else {"contact": args.contact}
+        new = EIPSimulator(SensorConfig(resolution=(64, 64), layers=6), PressConfig(n_grid=128, **kw), compile=comp)
+        old = op.EIPSimulator(
+            op.SensorConfig(resolution=(64, 64), layers=6), op.PressConfig(n_grid=128, **kw), compile=comp
+        )
         classes = available_classes()
         jobs = []
         for i in range(args.touches):
@@ -82,7 +87,10 @@ def main() -> None:
         warnings.simplefilter("ignore")
         for sim in (old, new):  # warm-up (and compile)
             sim.press(*jobs[0][1:4], **jobs[0][4])
-        print(f"torch {torch.__version__}, 1 thread, {'compiled' if comp else 'eager'}; old = {args.old}")
+        print(
+            f"torch {torch.__version__}, 1 thread, {'compiled' if comp else 'eager'}; old = {args.old}; "
+            f"contact {args.contact or 'default'}"
+        )
         ratios, t_old, t_new, differ = [], 0.0, 0.0, 0
         for k, (name, mesh, pos, d, kw) in enumerate(jobs):
             out = {}

@@ -8,8 +8,8 @@ pad, n_grid 128) is pressed by the eager solver and by the fused ``torch.compile
 alternating which goes first, on one thread. The first compiled press (the compile) is timed apart. Prints per touch
 the CPU seconds of both, their ratio and how far the readings are apart (the compiled step equals the eager one to
 float32 round-off, not bit for bit); then the median and total ratio. Only ratios from one process mean something
-on a loaded machine. ``--contact particle`` presses with ``PressConfig(contact="particle")`` (compiled: P2G and the
-grid update fused, the contact passes and G2P eager).
+on a loaded machine. ``--contact particle`` presses with ``PressConfig(contact="particle")`` (compiled: P2G, the grid
+update, the contact passes and G2P; the search for the particles near the body eager).
 """
 
 from __future__ import annotations

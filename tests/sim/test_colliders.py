@@ -137,6 +137,25 @@ def test_mesh_collider_at_block_equals_at_nodes_bitwise():
         assert torch.equal(sdf_b, sdf) and torch.equal(n_b, n)
 
 
+def test_mesh_collider_near_is_a_superset_of_the_points_within_reach_and_sdf_normal_is_both():
+    """The particle contact's prefilter keeps every point with sdf < reach (inside, at cell faces and nodes, outside
+    the table) and drops most far ones; ``sdf_normal`` is ``sdf`` and ``normal`` bit for bit."""
+    mc = MeshCollider(_sphere_mesh(), n_grid=128, region=REGION)
+    g = torch.Generator().manual_seed(3)
+    lo, hi = torch.tensor(REGION[0]) - 4 * DX, torch.tensor(REGION[1]) + 4 * DX
+    pts = lo + (hi - lo) * torch.rand(20_000, 3, generator=g)
+    on_nodes = torch.round(pts[:2000] / DX) * DX  # exactly on lattice nodes (cell faces in every axis)
+    pts = torch.cat([pts, on_nodes]).to(torch.float32)
+    sdf = mc.sdf(pts)
+    for reach in (0.25 * DX, DX, 2 * DX):
+        near = mc.near(pts, reach)
+        within = sdf < reach
+        assert within.sum() > 100 and bool(near[within].all())
+        assert near.sum() < 0.5 * len(pts) and near.sum() <= (sdf < reach + 2.5 * DX).sum()
+    s2, n2 = mc.sdf_normal(pts)
+    assert torch.equal(s2, sdf) and torch.equal(n2, mc.normal(pts))
+
+
 def test_open_plane_from_above_is_solid_below_and_a_shell_otherwise():
     """Issue 14 case 1: a zero-thickness plane between node planes had no solid node (the pad went through it)."""
     z0 = 0.5 + 0.5 / 32  # half-way between the node planes, where the press puts the touch plane

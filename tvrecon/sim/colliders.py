@@ -335,6 +335,32 @@ class MeshCollider:
             return 0
         return int((self.sdf(points) < 0).sum())
 
+    def near(self, points: Tensor, reach: float) -> Tensor:
+        """(N, 3) points -> (N,) bool, True for every point with ``sdf(points) < reach`` (and maybe a few more).
+
+        :meth:`sdf` is a trilinear combination (weights in [0, 1]) of its cell's 8 nodes plus a distance >= 0, so it is
+        at least the least of the 8; one gather of that least value per point (a table of cell minima, built once)
+        rules out the points far from the body without interpolating (the particle contact asks every step)."""
+        _check_points(points)
+        cmin = self._cell_min(points.device)  # (X', Y', Z')
+        top = torch.tensor(cmin.shape, device=points.device) - 1
+        g = points.float() / self.dx - self.lo_index.to(device=points.device, dtype=torch.float32)
+        i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), top)  # _cell's lower corner, in float32
+        least = cmin[i0[:, 0], i0[:, 1], i0[:, 2]]
+        # margins: the float32 round-off of the interpolation, and a point float32 puts in a neighbouring cell
+        return least - 1e-5 * least.abs() - 1e-3 * self.dx < reach
+
+    def _cell_min(self, device: torch.device) -> Tensor:
+        """(max(X - 1, 1), ...) float32 least node sdf of each trilinear cell (``_cell``'s lower corner), per device."""
+        cache = self.__dict__.setdefault("_cell_min_cache", {})
+        if device not in cache:
+            m = self.node_sdf.to(device)
+            for axis in range(3):
+                if m.shape[axis] > 1:
+                    m = torch.minimum(m.narrow(axis, 0, m.shape[axis] - 1), m.narrow(axis, 1, m.shape[axis] - 1))
+            cache[device] = m.contiguous()
+        return cache[device]
+
     def _lookup(self, table: Tensor, points: Tensor) -> Tensor:
         """Trilinear interpolation of a (X, Y, Z, C) node table at (N, 3) points -> (N, C)."""
         i0, i1, f = self._cell(points)
@@ -419,16 +445,32 @@ class MeshCollider:
     def sdf(self, points: Tensor) -> Tensor:
         """(N, 3) -> (N,) signed distance (< 0 inside), trilinear in the node table."""
         _check_points(points)
-        d = self._lookup(self.node_sdf[..., None], points)[:, 0]
-        lo, hi = self.lo.to(points), self.hi.to(points)
-        outside = (torch.clamp(lo - points, min=0) + torch.clamp(points - hi, min=0)).norm(dim=1)
-        return d + outside
+        return self._plus_outside(self._lookup(self.node_sdf[..., None], points)[:, 0], points)
 
     def normal(self, points: Tensor) -> Tensor:
         """(N, 3) -> (N, 3) unit outward normal (interpolated sdf gradient)."""
         _check_points(points)
-        n = self._lookup(self.node_normal, points)
-        nn = n.norm(dim=1, keepdim=True)
-        up = torch.zeros_like(n)
-        up[:, 2] = 1.0
-        return torch.where(nn > 1e-12, n / torch.where(nn > 1e-12, nn, torch.ones_like(nn)), up)
+        return _unit_or_up(self._lookup(self.node_normal, points))
+
+    def sdf_normal(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """``(sdf(points), normal(points))`` from one trilinear lookup of both tables (the same values, bit for bit;
+        the particle contact asks for both every step)."""
+        _check_points(points)
+        table = self.__dict__.get("_sdf_normal_table")
+        if table is None:
+            table = self._sdf_normal_table = torch.cat([self.node_sdf[..., None], self.node_normal], -1)  # (X,Y,Z,4)
+        both = self._lookup(table, points)
+        return self._plus_outside(both[:, 0], points), _unit_or_up(both[:, 1:])
+
+    def _plus_outside(self, d: Tensor, points: Tensor) -> Tensor:
+        """Interpolated sdf ``d`` (N,) plus the distance of the (N, 3) points to the region box (0 inside it)."""
+        lo, hi = self.lo.to(points), self.hi.to(points)
+        return d + (torch.clamp(lo - points, min=0) + torch.clamp(points - hi, min=0)).norm(dim=1)
+
+
+def _unit_or_up(n: Tensor) -> Tensor:
+    """(N, 3) vectors scaled to unit length; +z where a vector is (near) zero."""
+    nn = n.norm(dim=1, keepdim=True)
+    up = torch.zeros_like(n)
+    up[:, 2] = 1.0
+    return torch.where(nn > 1e-12, n / torch.where(nn > 1e-12, nn, torch.ones_like(nn)), up)

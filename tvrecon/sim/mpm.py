@@ -179,7 +179,7 @@ class MLSMPM:
             (:mod:`tvrecon.sim.mpm_compiled`; equal to the eager step to float32 round-off, not bit for bit). None
             (default) -> on when the environment variable ``TVRECON_COMPILE`` is ``1``. Steps that need autograd
             always run eager; when compiling fails the solver warns once and goes on eager. A compiled step returns
-            x, v, C, F as channel-first views (``mpm_fused.CF_VIEWS``); the particle contact's passes run eager.
+            x, v, C, F as channel-first views (``mpm_fused.CF_VIEWS``); the particle contact's search runs eager.
 
     After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
     (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;

@@ -274,6 +274,7 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "grid": (0, None, None, 0, 1),
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
     "share": (0, None, 0, 1, 0),
+    "contact": (0, 0, 1, 0, 0, 0, 0, 0, 0),
 }
 
 
@@ -296,6 +297,7 @@ class CompiledKernels:
 
     def __init__(self) -> None:
         from .mpm_compiled_grid import grid_collide  # imports node_sums from here
+        from .particle_contact import contact_passes
 
         self._fns: dict[str, Callable] = {
             name: torch.compile(f, options=_OPTIONS)
@@ -307,6 +309,7 @@ class CompiledKernels:
                 ("grid", grid_collide),
                 ("g2p", g2p_update),
                 ("share", share_force),
+                ("contact", contact_passes),
             )
         }
 

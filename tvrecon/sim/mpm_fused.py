@@ -11,8 +11,9 @@ the ``(N, 4)`` grid (:mod:`.mpm_scatter`; paper touches ~1.3x faster in one proc
 G2P gathers the 27 node velocities from the ``(N, 3)`` grid inside its kernel. The block bounds and each particle's
 node index are compiled too (``stencil_weights``, ``block_index``) when the scenes are contiguous blocks.
 The state comes back as views of the kernels' channel-first buffers (``CF_VIEWS``), so the next fused step reads it
-without a copy. With ``MPMConfig(contact="particle")`` the grid update has no colliders; the eager contact passes of
-:func:`tvrecon.sim.particle_contact.particle_contact_grid` then correct the grid velocities before the compiled G2P.
+without a copy. With ``MPMConfig(contact="particle")`` the grid update has no colliders;
+:func:`tvrecon.sim.particle_contact.particle_contact_grid` then finds the particles near a body (eager) and corrects
+the grid velocities with its contact passes (one compiled kernel, ``contact_passes``) before the compiled G2P.
 The reading's force field (``MLSMPM.last_particle_force``) is one compiled gather too (:func:`particle_force`; with
 particle contact, the contact's own particle forces).
 """
@@ -155,12 +156,13 @@ def _particle_contact(
     block: int | None,
 ) -> Tensor:
     """The grid side of a compiled step with ``MPMConfig(contact="particle")``, in :meth:`MLSMPM._step`'s order: the
-    compiled grid update without colliders (paper eq. 7), then the eager contact passes of
-    :func:`tvrecon.sim.particle_contact.particle_contact_grid`, which set ``last_force`` and the particle forces. G:
+    compiled grid update without colliders (paper eq. 7), then
+    :func:`tvrecon.sim.particle_contact.particle_contact_grid` with the compiled contact passes, which sets
+    ``last_force`` and the particle forces. G:
     the P2G sums, (N, 4) or (N, 108) rows; st: the fused stencil (w (27, P), the eager ``lin``, ``D`` and ``lo``).
     Returns the corrected (N, 3) grid velocities for the compiled G2P."""
     gv = _grid_update(solver, G, [None] * B, st).contiguous()  # (N, 3)
-    return particle_contact_grid(solver, state, st, gv, colliders, hand_velocity, alpha, B, block)
+    return particle_contact_grid(solver, state, st, gv, colliders, hand_velocity, alpha, B, block, solver._kernels)
 
 
 def particle_force(solver: MLSMPM, transfer: Transfer, mass: Tensor) -> Tensor:

@@ -23,14 +23,17 @@ grid, cf. the penalty contacts of DiffTactile and the particle-grid compatibilit
 2018): detecting on particles but correcting only their velocities would leave the grid free below them (see
 :func:`particle_contact_grid`). Everything is torch, batched over scenes (each scene's particles meet only its own
 collider), device-agnostic and differentiable where the collider's ``sdf`` and ``normal`` are (the analytic ones,
-and ``MeshCollider`` by trilinear interpolation). It adds an sdf query of every particle and small gather/scatter
-passes over the particles within a cell of a body; the grid collider's sdf query of every block node is skipped.
+and ``MeshCollider`` by trilinear interpolation). It adds a search for the particles within a cell of a body (a
+collider's optional ``near(points, reach)`` superset first, ``MeshCollider``'s one gather per particle, then the sdf
+and normal of those left, in one lookup where the collider has ``sdf_normal``) and small gather/scatter passes over
+them (:func:`contact_passes`, one compiled kernel in a compiled step); the grid collider's sdf query of every block
+node is skipped.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import torch
@@ -45,6 +48,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CONTACT_MODES",
     "collide_particles",
+    "contact_passes",
     "contact_velocity",
     "near_surface",
     "particle_contact_grid",
@@ -124,19 +128,30 @@ def near_surface(
     Returns:
         their (K,) int64 particle indices, (K,) int64 scene indices, (K,) signed distances and (K, 3) unit normals.
     """
-    all_idx = torch.arange(x.shape[0], device=x.device)
     found: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
     for b, col in enumerate(colliders):
         if col is None:
             continue
-        idx = all_idx[scenes[b]]
-        xb = x[idx]
-        phi = col.sdf(xb if xb.requires_grad else xb.detach())
-        keep = torch.nonzero(phi.detach() < reach).flatten()
+        xb = x[scenes[b]]  # a view for a slice
+        rows = None  # the rows of xb still in play (None: all)
+        prefilter = getattr(col, "near", None)  # a cheap superset (MeshCollider: least node sdf of the cell)
+        if prefilter is not None:
+            rows = torch.nonzero(prefilter(xb.detach(), reach)).flatten()
+            xb = xb[rows]
+        both = getattr(col, "sdf_normal", None)  # one lookup for both (MeshCollider)
+        if both is not None:
+            phi, n = both(xb)
+            keep = torch.nonzero(phi.detach() < reach).flatten()
+            phi, n = phi[keep], n[keep]
+        else:
+            phi = col.sdf(xb)
+            keep = torch.nonzero(phi.detach() < reach).flatten()
+            phi, n = phi[keep], col.normal(xb[keep])
         if keep.numel():
-            xk = xb[keep]
-            n = col.normal(xk if xk.requires_grad else xk.detach()).to(x.dtype)
-            found.append((idx[keep], torch.full_like(keep, b), phi[keep].to(x.dtype), n))
+            rows = keep if rows is None else rows[keep]
+            s = scenes[b]
+            idx = rows + (s.start or 0) if isinstance(s, slice) else torch.nonzero(s).flatten()[rows]
+            found.append((idx, torch.full_like(keep, b), phi.to(x.dtype), n.to(x.dtype)))
     if not found:
         e = torch.zeros(0, dtype=torch.int64, device=x.device)
         return e, e, x.new_zeros(0), x.new_zeros(0, 3)
@@ -184,11 +199,55 @@ def collide_particles(
     return v + particle_force * dt / mass[:, None].to(v.dtype), force, particle_force
 
 
-def stencil_nodes(st: Stencil) -> Tensor:
-    """(27, P) int64 block-grid index of each particle's 27 stencil nodes (offsets (i, j, k), i slowest)."""
+def stencil_nodes(st: Stencil, particles: Tensor | None = None) -> Tensor:
+    """(27, K) int64 block-grid index of the 27 stencil nodes (offsets (i, j, k), i slowest) of the K = P particles,
+    or of the (K,) int64 ``particles`` only."""
     S0, S1 = st.D[1] * st.D[2], st.D[2]
     o = stencil_offsets(st.lin.device, torch.int64)  # (27, 3)
-    return st.lin[None, :] + (o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2])[:, None]
+    lin = st.lin if particles is None else st.lin[particles]
+    return lin[None, :] + (o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2])[:, None]
+
+
+def contact_passes(
+    gv: Tensor,
+    flat: Tensor,
+    w: Tensor,
+    share: Tensor,
+    m: Tensor,
+    a: Tensor | None,
+    hv: Tensor | None,
+    phi: Tensor,
+    n: Tensor,
+    dt: float,
+    friction: float,
+    push_out: float,
+    push_cap: float,
+) -> tuple[Tensor, Tensor]:
+    """``ITERATIONS`` Jacobi passes of the grid-mediated impulse of K particles near a body
+    (:func:`particle_contact_grid`): gather their velocity from the grid (paper eq. 8), :func:`contact_velocity`,
+    scatter the impulse ``J_p`` back like momentum (eq. 6).
+
+    Args:
+        gv: (N, 3) grid velocities. flat: (27 K,) int64 stencil node of each (node o, particle k) pair, o slowest.
+        w: (27, K, 1) transfer weights. share: (27 K, 1) ``w_ip dt / m_i``. m: (K, 1) particle masses.
+        a: (K, 1) alpha_p of eq. 8 or None (all ones). hv: (K, 3) hand velocity (with ``a``) or None.
+        phi: (K,) signed distances, n: (K, 3) unit outward normals. dt, friction, push_out, push_cap: as
+            :func:`contact_velocity`.
+    Returns:
+        the corrected (N, 3) grid velocities and the (K, 3) collider force on each particle (sum over passes).
+    """
+    K = phi.shape[0]
+    total = torch.zeros_like(n)
+    for _ in range(ITERATIONS):
+        v = (w * gv[flat].reshape(27, K, 3)).sum(0)  # (K, 3) sum_i w_ip v_i
+        if a is not None and hv is not None:
+            v = a * v + (1.0 - a) * hv  # paper eq. 8 (eq:particle_v)
+        f = m * (contact_velocity(v, phi, n, dt, friction, push_out, push_cap) - v) / dt  # (K, 3)
+        if a is not None:
+            f = a * f
+        gv = gv.index_add(0, flat, share * f.repeat(27, 1))  # v_i += sum_p w_ip J_p / m_i
+        total = total + f
+    return gv, total
 
 
 def particle_contact_grid(
@@ -201,6 +260,7 @@ def particle_contact_grid(
     alpha: Tensor | None,
     B: int,
     block: int | None,
+    kernels: Callable[..., tuple[Tensor, Tensor]] | None = None,
 ) -> Tensor:
     """The rigid bodies' impulses on the particles, applied through the grid velocities ``gv`` (N, 3) before G2P
     (paper eq. 8-11); returns the corrected (N, 3) grid velocities and sets ``solver.last_force`` (B, 3) and the
@@ -221,6 +281,9 @@ def particle_contact_grid(
     its stress then leaks away through ``C``; measured: half the force at 0.03 of the P-wave speed.) One scatter
     shares a particle's impulse with the neighbours of its nodes, so it is repeated on what is left (Jacobi
     iterations); what the last one leaves lets a particle sink a little, corrected at the next steps.
+
+    ``kernels``: the compiled step's ``mpm_compiled.CompiledKernels``, whose ``"contact"`` kernel runs
+    :func:`contact_passes` fused (float32 round-off apart); None: eager.
     """
     P = state.x.shape[0]
     dt, dx, mu_f = solver.dt, solver.dx, solver.cfg.friction
@@ -228,27 +291,20 @@ def particle_contact_grid(
     K = cand.numel()
     total = gv.new_zeros(K, 3)
     if K:
-        gm = solver._last_transfer.node_mass.to(gv.dtype)
-        inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))[:, None]
-        idx = stencil_nodes(st)[:, cand]  # (27, K)
+        idx = stencil_nodes(st, cand)  # (27, K)
+        gm = solver._last_transfer.node_mass.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
+        inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))
         w = st.w[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
+        share = (w * (dt * inv_m)[:, :, None]).reshape(-1, 1)  # (27 K, 1): w_ip dt / m_i
+        flat = idx.reshape(-1)
         m = state.mass[cand, None].to(gv.dtype)  # (K, 1)
-        a = None if alpha is None else alpha[cand, None]  # (K, 1)
-        hv = None
-        if a is not None:
+        a = hv = None
+        if alpha is not None:
+            a = alpha[cand, None]  # (K, 1)
             hv = torch.zeros(3, dtype=gv.dtype, device=gv.device) if hand_velocity is None else hand_velocity
-            hv = hv[cand] if hv.dim() == 2 else hv
-        cap = PUSH_CAP_CELLS * dx / dt
-        for _ in range(ITERATIONS):
-            v = (w * gv[idx]).sum(0)  # (K, 3) sum_i w_ip v_i
-            if a is not None:
-                v = a * v + (1.0 - a) * hv  # paper eq. 8 (eq:particle_v)
-            f = m * (contact_velocity(v, phi, n, dt, mu_f, PUSH_OUT, cap) - v) / dt  # (K, 3)
-            if a is not None:
-                f = a * f
-            dp = torch.zeros_like(gv).index_add(0, idx.reshape(-1), (w * (f * dt)[None]).reshape(-1, 3))  # (N, 3)
-            gv = gv + dp * inv_m
-            total = total + f
+            hv = (hv[cand] if hv.dim() == 2 else hv.expand(K, 3)).contiguous()  # (K, 3)
+        args = (gv, flat, w, share, m, a, hv, phi, n, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
+        gv, total = contact_passes(*args) if kernels is None else kernels("contact", *args)
     solver.last_force = gv.new_zeros(B, 3).index_add(0, scene, total)
     solver._particle_contact_force = gv.new_zeros(P, 3).index_add(0, cand, total.detach())
     return gv
