@@ -70,7 +70,15 @@ def test_release_returns_to_rest_clamped_not_linear(sim: EIPSimulator) -> None:
         assert float(r.image[2].max()) > 0.6  # it was pressed
         assert r.residual is not None and r.residual.shape == r.image.shape
         assert r.frame_steps[-1] == r.steps + 70  # recorded through the release
-    assert float(clamped.residual.abs().max()) < 0.1  # back to rest (the reference: 0.02 cells)
+    # The hand's motion alone (the same steps, 4 cells clear of the sphere) leaves the pad 0.05-0.2 cells off rest
+    # over holds of 50-300 steps (0.05 here), a near-uniform offset of the contact layer whatever the collider; the
+    # contact leaves the rest: 0.025-0.07 cells over holds of 50-100 steps with the default particle contact (0.05
+    # here, 0.10 in all), 0.03-0.04 with the grid contact (0.03 here, 0.07 in all). Measured against that motion,
+    # the 0.1 bound does not ride on the phase of the motion's offset.
+    free_kw = {**kw, "gap": 4.0}
+    free = sim.press(SPHERE, TOP, DOWN, alpha_profile="clamped", max_steps=clamped.steps, threshold=None, **free_kw)
+    assert not free.contact and free.steps == clamped.steps
+    assert float((clamped.residual - free.residual).abs().max()) < 0.1  # back to rest (the reference: 0.02)
     # the paper's profile keeps residual deformation (positions follow the blend, F follows the grid)
     assert float(linear.residual.abs().max()) > 0.25
 
