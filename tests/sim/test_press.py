@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -9,6 +11,7 @@ import trimesh
 
 from tvrecon.sim.press import EIPSimulator, PressConfig, chamfer_eq13, chamfer_reaches, terminal_chamfer
 from tvrecon.sim.sensor import SensorConfig, pad_lattice
+from tvrecon.sim.stop_rules import threshold_cells
 
 SPHERE = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
 TOP = [0.0, 0.0, 0.3]
@@ -118,9 +121,13 @@ def test_touches_stop_at_their_own_condition(sim: EIPSimulator) -> None:
     box = trimesh.creation.box(extents=(0.8, 0.8, 0.8))
     mixed = sim.press_batch([SPHERE, box], [TOP, [0, 0, 0.4]], [DOWN, DOWN], threshold=0.08)
     # each stops at its own terminal check (paper eq. 12); a curved surface bends the centred contact layer sooner
-    # than a flat face, which only changes it through the pad's lateral (Poisson) expansion
-    assert mixed[0].chamfer >= 0.08 and mixed[1].chamfer >= 0.08
+    # than a flat face, which only changes it through the pad's lateral (Poisson) expansion. The threshold is in
+    # squared cells of a 128-cell grid (the default threshold_grid): 0.08 (40 / 128)^2 = 0.0078 in this grid's cells
+    own = threshold_cells(dataclasses.replace(sim.cfg, threshold=0.08))
+    assert own == pytest.approx(0.08 * (40 / 128) ** 2)
+    assert mixed[0].chamfer >= own and mixed[1].chamfer >= own
     assert mixed[0].steps < mixed[1].steps
+    assert mixed[1].depth < sim.cfg.max_depth  # the box too stops at its threshold, not at the travel limit
 
 
 def test_reading_geometry(sim: EIPSimulator) -> None:
