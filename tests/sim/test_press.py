@@ -415,32 +415,60 @@ def test_touch_position_moves_off_a_hole_and_refuses_an_edge_on_plane(sim: EIPSi
         sim.touch_position(plane, [1.0, 0.0, 0.0])
 
 
-# Golden default press: PressConfig defaults but n_grid=64 (about 1 s), default SensorConfig (64x64 pad), the default
-# stop rule (terminal chamfer threshold 0.05), an icosphere of radius 0.3 pressed from the top. Produced once with
-# this repository's simulator; the tactile images of the data pipeline come from exactly this code path.
-GOLDEN_STEPS = 59
-GOLDEN_IMAGE_MEAN = [-2.5871675461530685e-05, -7.580965757369995e-07, 0.05313700623810291]  # (x, y, z) channels
-GOLDEN_IMAGE_STD = [0.02366251465920265, 0.022965431535446338, 0.156607022216386]
-GOLDEN_IMAGE_ZMAX = 0.7257711887359619
+# Golden presses: PressConfig defaults but n_grid=64 (about 1 s), default SensorConfig (64x64 pad), the default stop
+# rule (terminal chamfer threshold 0.05), an icosphere of radius 0.3 pressed from the top. Produced once with this
+# repository's simulator; the tactile images of the data pipeline come from exactly these code paths.
 CACHE_BUMP = (
-    "the default press's tactile image changed: changing this means bumping the data cache version "
+    "the press's tactile image changed: changing this means bumping the data cache version "
     "(CACHE_VERSION in tvrecon/data/cache.py), or cached datasets keep the old images under the same keys"
 )
 
+# The default press (issue 15 item 1: particle contact, threshold in squared cells of a 128-cell grid, so 0.0125 in
+# this grid's cells). Produced with (one thread):
+#   python -c "import torch, trimesh; from tvrecon.sim.press import EIPSimulator, PressConfig;
+#   r = EIPSimulator(press=PressConfig(n_grid=64)).press(trimesh.creation.icosphere(subdivisions=3, radius=0.3),
+#   [0, 0, 0.3], [0, 0, -1.0]); i = r.image.double(); print(r.steps, i.mean((1, 2)).tolist(),
+#   i.std((1, 2)).tolist(), float(i[2].max()))"
+GOLDEN_STEPS = 54
+GOLDEN_IMAGE_MEAN = [-4.810281097888947e-07, -4.1443854570388794e-08, 0.020408516749739647]  # (x, y, z) channels
+GOLDEN_IMAGE_STD = [0.0009476183323031959, 0.001146768014886876, 0.08444226292647859]
+GOLDEN_IMAGE_ZMAX = 0.59759521484375
+
+# The grid-contact press (``contact="grid", threshold_grid=None``: the default before issue 15 item 1, threshold
+# 0.05 in this grid's own cells); the same values as when it was the default.
+GOLDEN_GRID_STEPS = 59
+GOLDEN_GRID_IMAGE_MEAN = [-2.5871675461530685e-05, -7.580965757369995e-07, 0.05313700623810291]
+GOLDEN_GRID_IMAGE_STD = [0.02366251465920265, 0.022965431535446338, 0.156607022216386]
+GOLDEN_GRID_IMAGE_ZMAX = 0.7257711887359619
+
+
+def _check_golden_press(press: PressConfig, steps: int, mean: list[float], std: list[float], zmax: float) -> None:
+    """The press of the sphere's top with ``press`` takes ``steps`` steps and gives an image (3, H, W) with these
+    channel means and standard deviations (3,) and largest normal displacement."""
+    r = EIPSimulator(press=press).press(SPHERE, TOP, DOWN)
+    img = r.image.double()
+    assert r.contact and r.steps == steps, f"{CACHE_BUMP} (steps {r.steps} != {steps})"
+    got_mean, got_std = img.mean((1, 2)), img.std((1, 2))
+    assert torch.allclose(got_mean, torch.tensor(mean, dtype=torch.float64), rtol=1e-4, atol=1e-6), (
+        f"{CACHE_BUMP} (channel means {got_mean.tolist()})"
+    )
+    assert torch.allclose(got_std, torch.tensor(std, dtype=torch.float64), rtol=1e-4), (
+        f"{CACHE_BUMP} (channel stds {got_std.tolist()})"
+    )
+    assert float(img[2].max()) == pytest.approx(zmax, rel=1e-4), f"{CACHE_BUMP} (max normal)"
+
 
 def test_golden_default_press_image_moments() -> None:
-    sim = EIPSimulator(press=PressConfig(n_grid=64))
-    r = sim.press(SPHERE, TOP, DOWN)
-    img = r.image.double()
-    assert r.contact and r.steps == GOLDEN_STEPS, f"{CACHE_BUMP} (steps {r.steps} != {GOLDEN_STEPS})"
-    mean, std = img.mean((1, 2)), img.std((1, 2))
-    assert torch.allclose(mean, torch.tensor(GOLDEN_IMAGE_MEAN, dtype=torch.float64), rtol=1e-4, atol=1e-6), (
-        f"{CACHE_BUMP} (channel means {mean.tolist()})"
-    )
-    assert torch.allclose(std, torch.tensor(GOLDEN_IMAGE_STD, dtype=torch.float64), rtol=1e-4), (
-        f"{CACHE_BUMP} (channel stds {std.tolist()})"
-    )
-    assert float(img[2].max()) == pytest.approx(GOLDEN_IMAGE_ZMAX, rel=1e-4), f"{CACHE_BUMP} (max normal)"
+    press = PressConfig(n_grid=64)
+    assert press.contact == "particle" and press.threshold_grid == 128  # the defaults these values were made with
+    _check_golden_press(press, GOLDEN_STEPS, GOLDEN_IMAGE_MEAN, GOLDEN_IMAGE_STD, GOLDEN_IMAGE_ZMAX)
+
+
+def test_golden_grid_contact_press_image_moments() -> None:
+    """The grid path (``contact="grid", threshold_grid=None``), pinned at the values it gave as the default."""
+    press = PressConfig(n_grid=64, contact="grid", threshold_grid=None)
+    steps, mean, std = GOLDEN_GRID_STEPS, GOLDEN_GRID_IMAGE_MEAN, GOLDEN_GRID_IMAGE_STD
+    _check_golden_press(press, steps, mean, std, GOLDEN_GRID_IMAGE_ZMAX)
 
 
 def test_stop_rules_are_an_ordered_list_and_depth_raises_max_depth_explicitly() -> None:
