@@ -53,8 +53,8 @@ def test_normal_grows_with_depth(sim: EIPSimulator) -> None:
 
 
 def test_stiffer_pad_indents_less_at_same_force(sim: EIPSimulator) -> None:
-    # 0.01: the grid contact starts within the 1-cell gap (touch plane half-way between node planes), so a smaller
-    # force is reached before the hand passes the gap and both depths read 0
+    # 0.01: set on the grid contact (contact="grid"), which starts within the 1-cell gap (touch plane half-way
+    # between node planes), so a smaller force was reached before the hand passed the gap and both depths read 0
     soft = sim.press(SPHERE, TOP, DOWN, E=3.0, speed=0.4, force=0.01)
     stiff = sim.press(SPHERE, TOP, DOWN, E=12.0, speed=0.4, force=0.01)
     for r in (soft, stiff):
