@@ -188,7 +188,9 @@ def bench_release(size: dict) -> dict:
     out = {}
     t0 = _cpu()
     for prof in ("clamped", "linear"):
-        sim = EIPSimulator(SensorConfig(alpha_profile=prof, **pad), PressConfig(n_grid=n, depth=2.0, release_steps=300))
+        # the grid contact, as measured in docs/physics.md section 3 (the press's default then)
+        press = PressConfig(n_grid=n, depth=2.0, release_steps=300, contact="grid", threshold_grid=None)
+        sim = EIPSimulator(SensorConfig(alpha_profile=prof, **pad), press)
         r = sim.press(mesh, [0.0, 0.0, 0.3], [0.0, 0.0, -1.0])
         res = r.residual
         out[prof] = {
@@ -214,14 +216,15 @@ def _corr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a * b).sum() / (a.norm() * b.norm()).clamp(min=1e-30))
 
 
-#: reference grid of the physical stop threshold (``PressConfig.threshold_grid``): the default threshold's meaning at
-#: the default n_grid
+#: reference grid of the physical stop threshold (``PressConfig.threshold_grid``, also its default): the paper's
+#: threshold at the default n_grid
 THRESHOLD_GRID = 128
 
 
 def bench_resolution(size: dict, contact: str = "grid", threshold_grid: int | None = None) -> dict:
     """Depth at the terminal-chamfer stop over ``size["grids"]`` and the image correlation of ``size["pair"]`` at one
-    physical depth, with ``PressConfig.contact`` and ``threshold_grid`` as given (defaults: the default press)."""
+    physical depth, with ``PressConfig.contact`` and ``threshold_grid`` as given (defaults: the grid contact and the
+    threshold in the press's own cells, the default press before issue 15 item 1)."""
     from tvrecon.sim.__main__ import load_shape
 
     opts = {"contact": contact, "threshold_grid": threshold_grid}

@@ -12,7 +12,8 @@ physical force at every grid (the threshold rule's stops at 128 and 256, 0.00273
 and 1.250e-2). At the default 0.1 c_p the force at first contact is an impact peak (1.6e-2 to 2.1e-2) followed by
 a plateau near 1.25e-2, so a force at the threshold stop's (0.0127) stops at the third step in contact at every
 grid; the default 0.03 is above both.
-``--contact grid`` presses with the default grid contact; ``--speed-fraction`` sets the hand speed (default 0.1 c_p).
+``--contact grid`` presses with the grid contact (the default before issue 15 item 1); ``--speed-fraction``
+sets the hand speed (default 0.1 c_p).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256                   # the default step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --dt-factor 0.25  # 4x smaller step

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from tvrecon.sim.__main__ import main
+from tvrecon.sim.__main__ import build_parser, main
+from tvrecon.sim.press import PressConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # see tests/conftest.py
 
@@ -25,6 +26,20 @@ def test_cli_press_writes_all_files(tmp_path: Path) -> None:
     assert data["image"].shape == (3, 8, 8)
     assert bool(data["contact"]) and float(data["depth"]) == pytest.approx(1.0, abs=0.1)
     np.testing.assert_allclose(data["direction"], [0.0, 0.0, -1.0], atol=1e-6)
+
+
+def test_cli_contact_and_threshold_grid_follow_the_press_defaults(capsys) -> None:
+    """Without the flags the CLI presses as ``PressConfig()`` does; ``--contact grid --threshold-grid 0`` is the
+    press before issue 15 item 1 (grid collider, threshold in the press's own cells)."""
+    parse = lambda *extra: build_parser().parse_args(["press", "--out", "o", *extra])  # noqa: E731
+    args = parse()
+    assert (args.contact, args.threshold_grid) == (PressConfig().contact, PressConfig().threshold_grid)
+    args = parse("--contact", "grid", "--threshold-grid", "0")
+    assert (args.contact, args.threshold_grid) == ("grid", None)
+    assert parse("--threshold-grid", "64").threshold_grid == 64
+    with pytest.raises(SystemExit):
+        parse("--threshold-grid", "-1")
+    assert "must be >= 0" in capsys.readouterr().err
 
 
 def test_cli_torus_from_the_object_library_and_bad_input(tmp_path: Path, capsys) -> None:

@@ -1,6 +1,7 @@
-"""The opt-in particle-level contact (``contact="particle"``) and the physical stop threshold (``threshold_grid``),
-issue 15 item 1. The defaults (grid contact, threshold in the press's own cells) are pinned elsewhere: the golden
-press in test_press.py and the preset cache keys in tests/data/test_preset_snapshot.py.
+"""The particle-level contact (``contact="particle"``) and the physical stop threshold (``threshold_grid``), issue
+15 item 1: the press's defaults since then (``MPMConfig`` keeps the grid collider). The default press is pinned
+elsewhere: the golden presses in test_press.py (the new default and the grid path) and the preset cache keys in
+tests/data/test_preset_snapshot.py.
 
 Measured numbers quoted in the comments come from these scenes on one thread (docs/physics.md has the benchmark).
 """
@@ -144,18 +145,22 @@ def test_autograd_through_a_particle_contact_press():
     assert torch.isfinite(g) and float(g) > 0  # a stiffer pad pushes back harder
 
 
-def test_defaults_and_cache_keys_unchanged():
+def test_defaults_and_cache_keys():
+    """The solver keeps the grid collider (the simulator contract); the press defaults to particle contact and a
+    threshold in 128-grid cells (issue 15 item 1). At their defaults the fields stay out of the cache spec; the old
+    press (``contact="grid"``, ``threshold_grid=None``) enters it."""
     assert MPMConfig().contact == "grid"
     p = PressConfig()
-    assert p.contact == "grid" and p.threshold_grid is None
-    # at their defaults the new fields stay out of the cache spec, so existing keys are unchanged
+    assert p.contact == "particle" and p.threshold_grid == 128
+    # at their defaults the fields stay out of the cache spec: a spec without them has the same key
     spec = canonical_json({"press": p})
     assert "contact" not in spec and "threshold_grid" not in spec
     legacy = {f.name: getattr(p, f.name) for f in dataclasses.fields(p) if f.name not in ("contact", "threshold_grid")}
     assert cache_key({"press": p}) == cache_key({"press": legacy})
     # any other value enters the key
-    keys = {cache_key({"press": q}) for q in (p, PressConfig(contact="particle"), PressConfig(threshold_grid=128))}
+    keys = {cache_key({"press": q}) for q in (p, PressConfig(contact="grid"), PressConfig(threshold_grid=None))}
     assert len(keys) == 3
+    assert "threshold_grid" in canonical_json({"press": PressConfig(threshold_grid=None)})
     with pytest.raises(ValueError, match="contact"):
         PressConfig(contact="nodes")
     with pytest.raises(ValueError, match="threshold_grid"):
@@ -165,9 +170,11 @@ def test_defaults_and_cache_keys_unchanged():
 
 
 def test_threshold_in_cells_of_a_reference_grid():
-    assert threshold_cells(PressConfig(n_grid=64)) == pytest.approx(0.05)
+    assert threshold_cells(PressConfig(n_grid=64, threshold_grid=None)) == pytest.approx(0.05)  # own cells
+    assert threshold_cells(PressConfig(n_grid=64)) == pytest.approx(0.05 / 4)  # the default: 128-grid cells
     assert threshold_cells(PressConfig(n_grid=64, threshold_grid=128)) == pytest.approx(0.05 / 4)
     assert threshold_cells(PressConfig(n_grid=256, threshold=0.1, threshold_grid=128)) == pytest.approx(0.4)
+    assert threshold_cells(PressConfig(n_grid=128)) == pytest.approx(0.05)  # the paper's grid: the paper's threshold
 
 
 def test_physical_stop_gives_one_depth_across_grids():

@@ -32,6 +32,19 @@ SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 
 BUILTIN_SHAPES = ("torus", "gear", "sphere", "cube")
 SENSOR_OUTPUTS = ("force", "markers", "rgb")
+#: The press defaults the ``--contact`` and ``--threshold-grid`` flags follow.
+PRESS_DEFAULTS = PressConfig()
+
+
+def threshold_grid_arg(text: str) -> int | None:
+    """``--threshold-grid N``: a positive N (``PressConfig.threshold_grid``), or 0 for None (the press's own cells)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 (0: the press's own cells), got {value}")
+    return value or None
 
 
 def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
@@ -297,10 +310,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", type=float, default=None, help="stop at this normal force")
     p.add_argument("--profile", choices=("clamped", "linear"), default="clamped", help="alpha profile")
     p.add_argument(
-        "--contact", choices=("grid", "particle"), default="grid", help="collider on grid nodes or on particles"
+        "--contact",
+        choices=("grid", "particle"),
+        default=PRESS_DEFAULTS.contact,
+        help=f"collider on grid nodes or on the pad's particles (default {PRESS_DEFAULTS.contact})",
     )
     p.add_argument(
-        "--threshold-grid", type=int, default=None, help="terminal threshold in squared cells of an N-cell grid"
+        "--threshold-grid",
+        type=threshold_grid_arg,
+        default=PRESS_DEFAULTS.threshold_grid,
+        metavar="N",
+        help=f"terminal threshold in squared cells of an N-cell grid (default {PRESS_DEFAULTS.threshold_grid}); "
+        "0: in the press's own cells (--contact grid --threshold-grid 0 is the press before issue 15 item 1)",
     )
     p.add_argument("--damping", type=float, default=0.0, help="grid velocity damping rate")
     p.add_argument("--resolution", type=int, default=None, help="tactile image size H = W (default 64, or --sensor's)")

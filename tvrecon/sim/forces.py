@@ -1,7 +1,9 @@
 """Per-taxel contact force field: the collider's force on the pad, per tactile pixel, in the sensor frame.
 
-The solver removes momentum from the grid nodes inside the object; node i's force f_i is shared out over the
-particles that gave it mass (``MLSMPM.last_particle_force``: ``f_p = m_p sum_i w_ip f_i / m_i``, so nothing is lost).
+With the press's default particle contact (``PressConfig.contact="particle"``) each particle's force is its contact
+impulse / dt (``MLSMPM.last_particle_force``; zero on particles off the object). With ``contact="grid"`` the solver
+removes momentum from the grid nodes inside the object, and node i's force f_i is shared out over the particles that
+gave it mass (``f_p = m_p sum_i w_ip f_i / m_i``, so nothing is lost).
 A taxel (i, j) owns the pad's column of particles under it (every layer at (i, j)): the contact force reaches the
 first layers through the B-spline stencil (1.5 cells), and the heavy back layer of a thin pad may take its share, so
 summing the column keeps the field's total equal to the contact force (to float round-off) while each column's force

@@ -52,8 +52,9 @@ class MPMConfig:
     friction: Coulomb coefficient on collider nodes (0 = frictionless slip).
     damping: viscous damping of grid velocity, ``v_i *= exp(-damping dt)``.
     cfl: Courant number of the CFL rule.
-    contact: "grid" (default: colliders act on grid nodes, the contract) or "particle" (opt-in: they act on the
-        particles after G2P, contact starting when a particle reaches the surface; :mod:`.particle_contact`).
+    contact: "grid" (default: colliders act on grid nodes, the contract) or "particle" (opt-in here, the default of
+        the press, ``PressConfig.contact``: they act on the particles after G2P, contact starting when a particle
+        reaches the surface; :mod:`.particle_contact`).
     """
 
     n_grid: int = 128

@@ -68,10 +68,12 @@ class PressConfig:
     Attributes:
         n_grid: grid cells across the domain (dx = 1 / n_grid in domain units).
         domain_size: world units spanned by the domain (the mesh is scaled by 1 / domain_size).
-        gap: start gap between the contact layer and the object's highest point under the pad, in cells. The grid
-            contact reaches the node plane 1.5 cells below the particles; with the touch plane half-way between node
-            planes (``placement.touch_z``) the default 1.0 is the smallest gap that starts out of contact, and the first
-            step already touches (no approach steps). Below 1.0 the pad starts in grid contact.
+        gap: start gap between the contact layer and the object's highest point under the pad, in cells. With the
+            default particle contact the pad touches when its particles reach the surface, so the hand first travels
+            the gap (the first step touches only when ``gap`` is below one step's travel). The grid contact
+            (``contact="grid"``) reaches the node plane 1.5 cells below the particles; with the touch plane half-way
+            between node planes (``placement.touch_z``) the default 1.0 is the smallest gap that starts out of grid
+            contact, and its first step already touches (no approach steps). Below 1.0 the pad starts in grid contact.
         speed: hand speed v_r in domain units / s; None -> ``speed_fraction`` * elastic (P-)wave speed.
         speed_fraction: fraction of the P-wave speed sqrt((lambda + 2 mu) / rho) used when ``speed`` is None.
         threshold: :func:`terminal_chamfer` threshold (squared cells per contact particle); the default stop rule.
@@ -81,25 +83,29 @@ class PressConfig:
         max_depth: the hand never travels more than ``gap + max_depth`` cells (also bounds the collider region and
             the reach); a longer ``depth`` raises it (see ``depth``).
         max_steps: hard step limit of the press phase; None -> the steps needed for ``gap + max_depth``.
-        friction: Coulomb friction coefficient on collider nodes.
+        friction: Coulomb friction coefficient of the collider (on nodes or particles, per ``contact``).
         dt: time step; None -> CFL rule of the solver (``cfl_dt``).
         release_steps: after pressing, retract the hand at ``speed`` (back to its start) and hold, for this
             many steps in total; the reading then carries the ``residual`` image.
         record_every: record the tactile image and the pad particles every this many steps (0 = off).
         progress: show a tqdm progress bar over the steps.
-        contact: where the rigid object acts on the pad (``MPMConfig.contact``): ``"grid"`` (default, the grid nodes
-            with sdf < 0; contact starts up to 1.5 cells before the particles arrive) or ``"particle"`` (opt-in: the
-            contact-layer particles, from when they reach the surface, whatever the object's offset from the node
-            planes; :mod:`tvrecon.sim.particle_contact`). With ``"particle"`` the first step touches only when
-            ``gap`` is below one step's travel.
-        threshold_grid: the grid whose cells measure ``threshold``. None (default): this press's ``n_grid`` (paper eq.
-            12 in the simulation's own cells, so the physical depth at the stop shrinks as ``n_grid`` grows). An int
-            N: squared cells of an N-cell grid, a fixed physical length (``domain_size / N`` world units); the terminal
-            check compares the chamfer with ``threshold * (n_grid / N)^2`` (e.g. ``threshold_grid=128`` stops every
-            grid where the default stops at ``n_grid`` 128).
+        contact: where the rigid object acts on the pad (``MPMConfig.contact``, whose own default stays ``"grid"``):
+            ``"particle"`` (default: the contact-layer particles, from when they reach the surface, whatever the
+            object's offset from the node planes; :mod:`tvrecon.sim.particle_contact`; meets the Hertz exponent
+            targets, docs/physics.md) or ``"grid"`` (the grid nodes with sdf < 0; contact starts up to 1.5 cells
+            before the particles arrive; the default before issue 15 item 1).
+        threshold_grid: the grid whose cells measure ``threshold``. An int N (default 128): squared cells of an
+            N-cell grid, a fixed physical length (``domain_size / N`` world units); the terminal check compares the
+            chamfer with ``threshold * (n_grid / N)^2``, so the default stops every grid where paper eq. 12 stops at
+            the paper's ``n_grid`` 128 (at ``n_grid`` 64 the threshold is 1/4 of ``threshold`` in own cells, at 256
+            4x). None: this press's ``n_grid`` (paper eq. 12 in the simulation's own cells, so the physical depth at
+            the stop shrinks as ``n_grid`` grows; the default before issue 15 item 1).
 
-    ``contact`` and ``threshold_grid`` were added after data was cached: at their defaults they stay out of the data
-    cache key (``config_utils.OMIT_IF_DEFAULT``), so existing keys are unchanged; other values enter it.
+    The press before issue 15 item 1 (grid-node collider, threshold in the press's own cells) is
+    ``PressConfig(contact="grid", threshold_grid=None)`` (CLI: ``--contact grid --threshold-grid 0``).
+    ``contact`` and ``threshold_grid`` were added after data was cached; at their defaults they stay out of the data
+    cache key (``config_utils.OMIT_IF_DEFAULT``) and other values (``"grid"``, None) enter it. Flipping the defaults
+    changed every default touch, so the data cache version was bumped with it (``tvrecon.data.cache.CACHE_VERSION``).
     """
 
     n_grid: int = 128
@@ -117,8 +123,8 @@ class PressConfig:
     release_steps: int = 0
     record_every: int = 0
     progress: bool = False
-    contact: str = field(default="grid", metadata=OMIT_IF_DEFAULT)
-    threshold_grid: int | None = field(default=None, metadata=OMIT_IF_DEFAULT)
+    contact: str = field(default="particle", metadata=OMIT_IF_DEFAULT)
+    threshold_grid: int | None = field(default=128, metadata=OMIT_IF_DEFAULT)
 
     def __post_init__(self) -> None:
         self.validate()
