@@ -236,15 +236,10 @@ def test_gradient_matches_finite_differences_grid_contact() -> None:
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="particle contact drops d(1/m_i)/dx: MLSMPM._grid_update stores the grid mass detached "
-    "(_last_transfer.node_mass) and particle_contact_grid scatters its impulse with that 1/m_i; measured autograd "
-    "d/d(speed) 267.9 vs finite differences 199.3 (h=0.1) / 206.1 (h=0.02); with the mass kept attached 206.2",
-)
 def test_gradient_matches_finite_differences_particle_contact() -> None:
     """The default press (particle contact): the pad travels the 1-cell gap before it touches, so 45 steps (0.44
-    cells past contact)."""
+    cells past contact). Regression: the contact divided its impulse by the detached grid mass, d/d(speed) 267.9 by
+    autograd against 199.3 / 206.1 by finite differences (h = 0.1 / 0.02); with the mass's graph 206.2."""
     _check_gradient_against_finite_differences(PressConfig(n_grid=32, dt=2e-3, threshold=None), max_steps=45)
 
 

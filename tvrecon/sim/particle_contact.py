@@ -1,4 +1,4 @@
-"""Particle-level rigid contact (opt-in ``MPMConfig(contact="particle")``, issue 15 item 1).
+"""Particle-level rigid contact (``MPMConfig(contact="particle")``, the press's default, issue 15 item 1).
 
 The default collider (:func:`tvrecon.sim.colliders.collide_grid`) acts on grid nodes whose signed distance is
 negative. A node carries mass from particles up to 1.5 cells away, so contact starts before the particles reach the
@@ -56,7 +56,8 @@ __all__ = [
     "stencil_nodes",
 ]
 
-#: ``MPMConfig.contact`` values: "grid" (the default node collider, the simulator contract) or "particle" (here).
+#: ``MPMConfig.contact`` values: "grid" (the node collider, the solver's default and the simulator contract) or
+#: "particle" (here; the default of the press, ``PressConfig.contact``).
 CONTACT_MODES = ("grid", "particle")
 
 #: Fraction of its depth a particle found inside a body is moved back out per step (Baumgarte-style correction of the
@@ -261,6 +262,7 @@ def particle_contact_grid(
     B: int,
     block: int | None,
     kernels: Callable[..., tuple[Tensor, Tensor]] | None = None,
+    node_mass: Tensor | None = None,
 ) -> Tensor:
     """The rigid bodies' impulses on the particles, applied through the grid velocities ``gv`` (N, 3) before G2P
     (paper eq. 8-11); returns the corrected (N, 3) grid velocities and sets ``solver.last_force`` (B, 3) and the
@@ -283,7 +285,9 @@ def particle_contact_grid(
     iterations); what the last one leaves lets a particle sink a little, corrected at the next steps.
 
     ``kernels``: the compiled step's ``mpm_compiled.CompiledKernels``, whose ``"contact"`` kernel runs
-    :func:`contact_passes` fused (float32 round-off apart); None: eager.
+    :func:`contact_passes` fused (float32 round-off apart); None: eager. ``node_mass``: the (N,) grid mass with its
+    autograd graph (the eager step passes it: the impulse share ``w_ip J_p / m_i`` depends on the positions through
+    ``m_i`` too); None: ``solver._last_transfer.node_mass`` (detached; enough without grad).
     """
     P = state.x.shape[0]
     dt, dx, mu_f = solver.dt, solver.dx, solver.cfg.friction
@@ -292,7 +296,8 @@ def particle_contact_grid(
     total = gv.new_zeros(K, 3)
     if K:
         idx = stencil_nodes(st, cand)  # (27, K)
-        gm = solver._last_transfer.node_mass.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
+        gm = solver._last_transfer.node_mass if node_mass is None else node_mass
+        gm = gm.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
         inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))
         w = st.w[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
         share = (w * (dt * inv_m)[:, :, None]).reshape(-1, 1)  # (27 K, 1): w_ip dt / m_i
