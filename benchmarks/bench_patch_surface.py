@@ -61,7 +61,7 @@ def main() -> None:
         f"{args.touches} touches, pad {args.pad}x{args.pad}x{args.layers} on {args.n_grid}^3; distances of the "
         "patch points to the surface in cells (signed: > 0 inside the object)"
     )
-    print("| contact | patch points | mean abs distance | within 0.2 cells | mean signed | mean depth at the stop (cells) |")
+    print("| contact | patch points | mean abs distance | within 0.2 cells | mean signed | mean depth at the stop |")
     print("| --- | --- | --- | --- | --- | --- |")
     for k in CONTACTS:
         d = np.concatenate(dist[k]) if dist[k] else np.zeros(0)
