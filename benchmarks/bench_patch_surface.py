@@ -9,7 +9,8 @@ item 1) and with the default (particle contact, threshold in 128-grid cells). Th
 (:func:`tvrecon.sim.contact.reading_patch`: the pushed-in taxels, normal channel > ``DEFAULT_MIN_PUSH``, mapped back
 to world points) is compared with the mesh: signed distance of every patch point (trimesh, > 0 inside the object), in
 grid cells. Prints per contact the patch points, their mean |distance|, the share within 0.2 cells and the mean
-signed distance, and the mean depth at the stop.
+signed distance, and the mean depth at the stop; then what the tactile images hold (means over the touches): the
+largest normal displacement, the largest shear and the share of taxels pushed in, in cells.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ def main() -> None:
     sims = {k: EIPSimulator(sensor, PressConfig(n_grid=args.n_grid, **kw)) for k, kw in CONTACTS.items()}
     dist: dict[str, list[np.ndarray]] = {k: [] for k in CONTACTS}
     depth: dict[str, list[float]] = {k: [] for k in CONTACTS}
+    image: dict[str, list[tuple[float, float, float]]] = {k: [] for k in CONTACTS}
     cell = 1.0 / args.n_grid
     for i in range(args.touches):
         mesh = make_shape(available_classes()[i % len(available_classes())], 0)
@@ -57,6 +59,8 @@ def main() -> None:
             if len(pts):
                 dist[k].append(trimesh.proximity.signed_distance(mesh, pts) / cell)
             depth[k].append(float(r.depth))
+            im = r.image  # (3, H, W) cells
+            image[k].append((float(im[2].max()), float(im[:2].norm(dim=0).max()), float(p.mask.float().mean())))
     print(
         f"{args.touches} touches, pad {args.pad}x{args.pad}x{args.layers} on {args.n_grid}^3; distances of the "
         "patch points to the surface in cells (signed: > 0 inside the object)"
@@ -69,6 +73,12 @@ def main() -> None:
             f"| {k} | {len(d)} | {np.abs(d).mean():.3f} | {(np.abs(d) < 0.2).mean():.1%} | {d.mean():+.3f} | "
             f"{np.mean(depth[k]):.2f} |"
         )
+
+    print("\n| contact | max normal (cells) | max shear (cells) | taxels pushed in |")
+    print("| --- | --- | --- | --- |")
+    for k in CONTACTS:
+        a = np.array(image[k])
+        print(f"| {k} | {a[:, 0].mean():.2f} | {a[:, 1].mean():.3f} | {a[:, 2].mean():.1%} |")
 
 
 if __name__ == "__main__":
