@@ -202,3 +202,21 @@ def test_classify_experiment_trains_and_prints_table2(tmp_path: Path, capsys: py
     printed = capsys.readouterr().out
     assert "Table 2" in printed and "2-touch" in printed
     assert (tmp_path / "tables" / "table2.csv").read_text().splitlines()[0].startswith("Model,1-touch,2-touch")
+
+
+def test_run_folders_of_runs_started_in_one_second_differ() -> None:
+    """Two runs (or sweeps) started in the same second must not share a folder: they would write their checkpoints
+    over each other's. The folder time ends in microseconds."""
+    from datetime import datetime
+
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONFIGS), version_base="1.3"):
+        cfg = compose("train", [], return_hydra_config=True)
+    for node in (cfg.hydra.run, cfg.hydra.sweep):
+        raw = OmegaConf.to_container(node, resolve=False)["dir"]
+        pattern = raw.split("${now:")[-1].split("}")[0]  # the time part of the folder name
+        a, b = datetime(2026, 1, 1, 3, 38, 20, 123), datetime(2026, 1, 1, 3, 38, 20, 957)  # one second, two starts
+        assert a.strftime(pattern) != b.strftime(pattern), raw
