@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
 from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.sim.particle_contact import CONTACT_MODES  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
 
 
@@ -66,7 +67,7 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=1, help="index of the first class")
     parser.add_argument("--stride", type=int, default=3, help="class index step between touches")
     parser.add_argument("--eager", action="store_true", help="compare the eager paths (default: compile=True)")
-    parser.add_argument("--contact", choices=("grid", "particle"), default=None, help="PressConfig.contact of both")
+    parser.add_argument("--contact", choices=CONTACT_MODES, default=None, help="PressConfig.contact of both")
     args = parser.parse_args()
     torch.set_num_threads(1)
     comp = not args.eager

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import trimesh
 
+from tvrecon.sim.particle_contact import CONTACT_MODES
 from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading
 from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, save_tactile_png
 from tvrecon.sim.sensor import SensorConfig
@@ -311,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", choices=("clamped", "linear"), default="clamped", help="alpha profile")
     p.add_argument(
         "--contact",
-        choices=("grid", "particle"),
+        choices=CONTACT_MODES,
         default=PRESS_DEFAULTS.contact,
         help=f"collider on grid nodes or on the pad's particles (default {PRESS_DEFAULTS.contact})",
     )

@@ -327,7 +327,9 @@ class MLSMPM:
             gv = self._grid_update(grid, [None] * B, st)
             # grid[0]: the node mass with its graph (the transfer keeps it detached), so that d(1 / m_i)/dx reaches
             # autograd through the contact's impulse share w_ip J_p / m_i
-            gv = particle_contact_grid(self, state, st, gv, colliders, hand_velocity, alpha, B, block, None, grid[0])
+            gv = particle_contact_grid(
+                self, state, st, gv, colliders, hand_velocity, alpha, B, block, node_mass=grid[0]
+            )
         else:
             gv = self._grid_update(grid, colliders, st)
         return self._g2p(state, st, gv, hand_velocity, alpha)
