@@ -13,7 +13,9 @@ and 1.250e-2). At the default 0.1 c_p the force at first contact is an impact pe
 a plateau near 1.25e-2, so a force at the threshold stop's (0.0127) stops at the third step in contact at every
 grid; the default 0.03 is above both.
 ``--contact grid`` presses with the grid contact (the default before issue 15 item 1); ``--speed-fraction``
-sets the hand speed (default 0.1 c_p).
+sets the hand speed (default 0.1 c_p). ``--shapes`` presses other objects of the library (``tvrecon.data.shapes``,
+or ``sphere``) the same way, from the top at their ``touch_position``, and ends with one summary row per shape;
+``all`` is the whole library. A press that reaches its travel limit before the rule is marked ``travel``.
 
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256                   # the default step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --dt-factor 0.25  # 4x smaller step
@@ -22,6 +24,7 @@ sets the hand speed (default 0.1 c_p).
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --contact grid    # grid contact
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --speed-fraction 0.03 \\
         --rule force --force 0.0098                                                              # a slower press
+    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --shapes sphere ball egg  # other objects
 
 ``docs/physics.md`` ("Why n_grid 64 stops 18% deeper", "A stop at one force", "The same stops at 0.03 c_p") has the
 numbers.
@@ -33,8 +36,10 @@ import argparse
 import time
 
 import torch
+import trimesh
 from bench_physics import _corr, scaled_pad
 
+from tvrecon.data.shapes import available_classes, make_shape
 from tvrecon.sim import particle_contact
 from tvrecon.sim.mpm import MPMConfig, cfl_dt
 from tvrecon.sim.press import EIPSimulator, PressConfig
@@ -59,9 +64,33 @@ def pooled_corr(coarse: torch.Tensor, fine: torch.Tensor) -> tuple[float, float]
     return _corr(coarse[2], f[2]), _corr(coarse[:2], f[:2])
 
 
-def main(argv: list[str] | None = None) -> int:
+def shape_mesh(name: str) -> trimesh.Trimesh:
+    """An object of the library (``tvrecon.data.shapes``, seed 0) or a CLI built-in (``sphere``: an icosphere)."""
     from tvrecon.sim.__main__ import load_shape
 
+    return make_shape(name, seed=0) if name in available_classes() else load_shape(name)
+
+
+def press_grids(args: argparse.Namespace, name: str) -> list[tuple]:
+    """Press ``name`` from the top at every ``args.grids``; one row per grid (see :func:`main`)."""
+    mesh = shape_mesh(name)
+    direction = [0.0, 0.0, -1.0]
+    pos = EIPSimulator(scaled_pad(128), PressConfig(n_grid=128)).touch_position(mesh, direction)
+    stop = {"threshold_grid": 128} if args.rule == "threshold" else {"force": args.force}
+    rows = []
+    for n in args.grids:
+        s = pad(n, args.spacing, args.thick_div)
+        dt = args.dt_factor * cfl_dt(MPMConfig(n_grid=n, E=s.E, nu=s.nu, rho=s.rho))
+        p = PressConfig(n_grid=n, contact=args.contact, dt=dt, speed_fraction=args.speed_fraction, **stop)
+        t0 = time.process_time()
+        r = EIPSimulator(s, p).press(mesh, pos, direction)
+        fn = float(-(r.force.double() @ torch.tensor(direction, dtype=torch.float64)))  # normal force on the pad
+        travel = r.depth >= float(p.max_depth) - 1e-3  # the travel limit stopped it, not the rule
+        rows.append((n, r.depth, r.depth / n, fn, r.image / n, r.steps, time.process_time() - t0, travel))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--grids", type=int, nargs="+", default=[64, 128])
     ap.add_argument("--dt-factor", type=float, default=1.0, help="time step / the CFL step")
@@ -72,26 +101,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rule", choices=("threshold", "force"), default="threshold", help="the stop rule")
     ap.add_argument("--force", type=float, default=FORCE, help="--rule force: normal force at the stop, domain units")
     ap.add_argument("--speed-fraction", type=float, default=0.1, help="hand speed / the P-wave speed")
+    ap.add_argument("--shapes", nargs="+", default=["gear"], help="objects to press (library names, sphere, or all)")
     args = ap.parse_args(argv)
     particle_contact.ITERATIONS = args.iterations  # read at every step
 
-    mesh = load_shape("gear")
-    direction = [0.0, 0.0, -1.0]
-    pos = EIPSimulator(scaled_pad(128), PressConfig(n_grid=128)).touch_position(mesh, direction)
-    stop = {"threshold_grid": 128} if args.rule == "threshold" else {"force": args.force}
-    rows = []
-    for n in args.grids:
-        s = pad(n, args.spacing, args.thick_div)
-        dt = args.dt_factor * cfl_dt(MPMConfig(n_grid=n, E=s.E, nu=s.nu, rho=s.rho))
-        t0 = time.process_time()
-        r = EIPSimulator(
-            s, PressConfig(n_grid=n, contact=args.contact, dt=dt, speed_fraction=args.speed_fraction, **stop)
-        ).press(mesh, pos, direction)
-        fn = float(-(r.force.double() @ torch.tensor(direction, dtype=torch.float64)))  # normal force on the pad
-        rows.append((n, r.depth, r.depth / n, fn, r.image / n, r.steps, time.process_time() - t0))
+    summary = []
+    for name in available_classes() if args.shapes == ["all"] else args.shapes:
+        rows = press_grids(args, name)
+        summary.append((name, rows))
+        print_rows(args, name, rows)
+    if len(summary) > 1:
+        print_summary(args, summary)
+    return 0
+
+
+def print_rows(args: argparse.Namespace, name: str, rows: list[tuple]) -> None:
+    """One shape's table: depth, ratio to the finest grid, force, image correlation with the finest grid."""
     base, img_f = rows[-1][2], rows[-1][4]
     print(
-        f"{args.contact} contact, stop: {args.rule} "
+        f"{name}: {args.contact} contact, stop: {args.rule} "
         f"({'threshold_grid 128' if args.rule == 'threshold' else f'force {args.force:g}'}), dt x {args.dt_factor:g}, "
         f"{args.iterations} contact passes, spacing {args.spacing:g}, pad 1/{args.thick_div} thick, "
         f"speed {args.speed_fraction:g} c_p"
@@ -101,11 +129,31 @@ def main(argv: list[str] | None = None) -> int:
         "| steps | CPU-s |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for n, dc, dd, fn, img, steps, cpu in rows:
+    for n, dc, dd, fn, img, steps, cpu, travel in rows:
         cn, cs = pooled_corr(img, img_f) if n != rows[-1][0] else (1.0, 1.0)
         rel = dd / base if base > 0 else float("nan")
-        print(f"| {n} | {dc:.4f} | {dd:.5f} | {rel:.2f} | {fn:.3e} | {cn:.3f} | {cs:.3f} | {steps} | {cpu:.1f} |")
-    return 0
+        print(
+            f"| {n} | {dc:.4f}{' travel' if travel else ''} | {dd:.5f} | {rel:.2f} | {fn:.3e} | {cn:.3f} | {cs:.3f} "
+            f"| {steps} | {cpu:.1f} |"
+        )
+
+
+def print_summary(args: argparse.Namespace, summary: list[tuple[str, list[tuple]]]) -> None:
+    """One row per shape: stop depth (domain units) per grid and its ratio to the finest grid."""
+    grids = args.grids
+    print(
+        "\n| shape | "
+        + " | ".join(f"depth {n}" for n in grids)
+        + " | "
+        + " | ".join(f"{n} / {grids[-1]}" for n in grids[:-1])
+        + " |"
+    )
+    print("| --- " * (2 * len(grids)) + "|")
+    for name, rows in summary:
+        base = rows[-1][2]
+        depths = " | ".join(f"{r[2]:.5f}{' (travel)' if r[7] else ''}" for r in rows)
+        ratios = " | ".join(f"{r[2] / base:.2f}" if base > 0 else "nan" for r in rows[:-1])
+        print(f"| {name} | {depths} | {ratios} |")
 
 
 if __name__ == "__main__":
