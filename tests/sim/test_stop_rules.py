@@ -12,6 +12,7 @@ from tvrecon.sim.stop_rules import (
     chamfer_surely_below,
     rest_terms,
     terminal_chamfer,
+    terminal_displacement,
 )
 
 
@@ -91,3 +92,21 @@ def test_chamfer_is_blind_to_in_plane_motion_beyond_half_a_spacing() -> None:
             assert ratio > 0.999, (strain, edge, ratio)
         ratios.append(ratio)
     assert ratios[-1] < 0.6 * ratios[0]  # beyond half a spacing the chamfer no longer grows with the spread
+
+
+def test_displacement_measure_bounds_the_chamfer_and_sees_the_spread() -> None:
+    """``terminal_displacement`` >= the chamfer on every layer, and a rule on it stops where eq. 12 saturates."""
+
+    class State:
+        steps, travel, contact, force_hist = 10, 3.0, True, [1.0]
+
+    x0, lattice, xs = _layers(torch.float64)
+    for x in xs:
+        assert terminal_displacement(x, x0) >= terminal_chamfer(x, x0, lattice) * (1 - 1e-9)
+    rel = x0 - x0.mean(0)
+    spread = x0.clone()
+    spread[:, :2] = x0.mean(0)[:2] + rel[:, :2] * 1.2  # edge particles 1.5 spacings out
+    value = terminal_displacement(spread, x0)
+    assert terminal_chamfer(spread, x0, lattice) < 0.5 * value
+    assert ThresholdRule(0.9 * value, measure="displacement").reached(State(), StopCheck(spread, x0, lattice))
+    assert not ThresholdRule(0.9 * value).reached(State(), StopCheck(spread, x0, lattice))

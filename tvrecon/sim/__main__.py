@@ -28,6 +28,7 @@ from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading
 from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, save_tactile_png
 from tvrecon.sim.sensor import SensorConfig
 from tvrecon.sim.sensor_presets import SENSOR_PRESETS
+from tvrecon.sim.stop_rules import TERMINAL_MEASURES
 
 SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 
@@ -163,6 +164,7 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
         force=args.force,
         contact=args.contact,
         threshold_grid=args.threshold_grid,
+        terminal=args.terminal,
         record_every=1,
         progress=True,
         release_steps=0,
@@ -323,6 +325,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help=f"terminal threshold in squared cells of an N-cell grid (default {PRESS_DEFAULTS.threshold_grid}); "
         "0: in the press's own cells (--contact grid --threshold-grid 0 is the press before issue 15 item 1)",
+    )
+    p.add_argument(
+        "--terminal",
+        choices=TERMINAL_MEASURES,
+        default=PRESS_DEFAULTS.terminal,
+        help=f"what the terminal threshold measures (default {PRESS_DEFAULTS.terminal}: paper eq. 12); displacement: "
+        "the same deformation matched particle to particle, one deformation at every --n-grid on flat faces",
     )
     p.add_argument("--damping", type=float, default=0.0, help="grid velocity damping rate")
     p.add_argument("--resolution", type=int, default=None, help="tactile image size H = W (default 64, or --sensor's)")

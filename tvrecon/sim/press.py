@@ -43,6 +43,7 @@ from tvrecon.sim.press_run import PressLoop, TactileReading
 from tvrecon.sim.sensor import SensorConfig, _scalar
 from tvrecon.sim.stop_rules import (
     DEFAULT_THRESHOLD,
+    TERMINAL_MEASURES,
     chamfer_eq13,
     chamfer_reaches,
     terminal_chamfer,
@@ -100,12 +101,20 @@ class PressConfig:
             the paper's ``n_grid`` 128 (at ``n_grid`` 64 the threshold is 1/4 of ``threshold`` in own cells, at 256
             4x). None: this press's ``n_grid`` (paper eq. 12 in the simulation's own cells, so the physical depth at
             the stop shrinks as ``n_grid`` grows; the default before issue 15 item 1).
+        terminal: what ``threshold`` is compared with: ``"chamfer"`` (default: paper eq. 12, :func:`terminal_chamfer`)
+            or ``"displacement"`` (beyond the paper: the same centred deformation with each particle matched to its
+            own rest position, :func:`~tvrecon.sim.stop_rules.terminal_displacement`). Eq. 12's nearest neighbours
+            stop seeing a sideways spread once it passes half the lattice spacing (half a cell), so on a face larger
+            than the pad the chamfer stop comes deeper on finer grids (0.61 of the 256 depth at 128); the
+            displacement stop does not (0.98-0.99). Elsewhere the two agree. docs/physics.md, "The stop depth across
+            the object library".
 
     The press before issue 15 item 1 (grid-node collider, threshold in the press's own cells) is
     ``PressConfig(contact="grid", threshold_grid=None)`` (CLI: ``--contact grid --threshold-grid 0``).
-    ``contact`` and ``threshold_grid`` were added after data was cached; at their defaults they stay out of the data
-    cache key (``config_utils.OMIT_IF_DEFAULT``) and other values (``"grid"``, None) enter it. Flipping the defaults
-    changed every default touch, so the data cache version was bumped with it (``tvrecon.data.cache.CACHE_VERSION``).
+    ``contact``, ``threshold_grid`` and ``terminal`` were added after data was cached; at their defaults they stay out
+    of the data cache key (``config_utils.OMIT_IF_DEFAULT``) and other values (``"grid"``, None, ``"displacement"``)
+    enter it. Flipping the ``contact`` and ``threshold_grid`` defaults changed every default touch, so the data cache
+    version was bumped with it (``tvrecon.data.cache.CACHE_VERSION``).
     """
 
     n_grid: int = 128
@@ -125,6 +134,7 @@ class PressConfig:
     progress: bool = False
     contact: str = field(default="particle", metadata=OMIT_IF_DEFAULT)
     threshold_grid: int | None = field(default=128, metadata=OMIT_IF_DEFAULT)
+    terminal: str = field(default="chamfer", metadata=OMIT_IF_DEFAULT)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -156,6 +166,8 @@ class PressConfig:
         tg = self.threshold_grid
         if tg is not None and not (isinstance(tg, int) and not isinstance(tg, bool) and tg > 0):
             raise ValueError(f"PressConfig.threshold_grid must be a positive int or None, got {self.threshold_grid!r}")
+        if self.terminal not in TERMINAL_MEASURES:
+            raise ValueError(f"PressConfig.terminal must be one of {TERMINAL_MEASURES}, got {self.terminal!r}")
 
 
 class EIPSimulator:

@@ -9,7 +9,10 @@ press (later rules are not evaluated: the terminal chamfer is the costly one)::
        ThresholdRule   ``threshold``: terminal chamfer (paper eq. 12), after contact  /  is in the list
 
 The terminal threshold is in squared cells of the press's own grid, or, with ``PressConfig.threshold_grid`` = N, in
-squared cells of an N-cell grid (a physical unit: :func:`threshold_cells` converts it).
+squared cells of an N-cell grid (a physical unit: :func:`threshold_cells` converts it). It is compared with the
+paper's chamfer, or with ``PressConfig.terminal="displacement"`` with :func:`terminal_displacement`, the same
+deformation matched particle to particle (beyond the paper: eq. 12's nearest neighbours stop seeing a sideways spread
+past half a lattice spacing, docs/physics.md "The stop depth across the object library").
 
 A ``depth`` rule needs travel: :func:`travel_for_depth` raises ``max_depth`` to ``depth + 0.5`` cells when it is
 shorter, so the travel limit does not stop the press before the requested depth (the placement's collider region
@@ -67,6 +70,24 @@ def terminal_chamfer(x: Tensor, x0: Tensor, lattice: tuple[int, int, float] | No
         d_ab2 = d_ab**2
     d_ba, _ = cKDTree(a).query(b, workers=1)
     return float(d_ab2.mean() + (d_ba**2).mean())
+
+
+def terminal_displacement(x: Tensor, x0: Tensor) -> float:
+    """The deformation eq. 12 measures, with each particle matched to its own rest position (not the paper's).
+
+    ``l = 2 mean_p |x^_p - x^0_p|^2`` with ``x^ = x - mean(x)``: at least :func:`terminal_chamfer` (each of its two
+    terms is at most ``mean_p |x^_p - x^0_p|^2``) and equal to it while no particle moves sideways by more than half
+    the lattice spacing; unlike the chamfer it keeps growing with a sideways (Poisson) spread, so one threshold is
+    one deformation at every n_grid. Not differentiable (it only drives the terminal check).
+
+    Args:
+        x: (N, 3) contact layer now, in cells. x0: (N, 3) the same particles at rest, in cells.
+    Returns:
+        the measure in squared cells.
+    """
+    a, b = x.detach().double(), x0.detach().double()
+    u = (a - a.mean(0)) - (b - b.mean(0))
+    return float(2 * (u * u).sum(1).mean())
 
 
 #: Deprecated alias of :func:`terminal_chamfer` (same object; the paper numbers the equation 12, not 13).
@@ -227,14 +248,19 @@ class ForceRule:
 
 @dataclass(frozen=True)
 class ThresholdRule:
-    """The terminal check of Algorithm 1: stop once in contact and :func:`terminal_chamfer` >= ``threshold``."""
+    """The terminal check of Algorithm 1: stop once in contact and :func:`terminal_chamfer` >= ``threshold``.
+
+    ``measure="displacement"`` compares :func:`terminal_displacement` instead (``PressConfig.terminal``)."""
 
     threshold: float
+    measure: str = "chamfer"
     _rest: dict[str, object] = field(default_factory=dict, compare=False, repr=False)  # rest_terms, per rest layer
 
     def reached(self, state: PressState, check: StopCheck) -> bool:
         if not state.contact:
             return False
+        if self.measure == "displacement":
+            return terminal_displacement(check.contact_cells, check.rest_cells) >= self.threshold
         if self._rest.get("x0") is not check.rest_cells:  # the same rest layer every step of a press
             self._rest.update(x0=check.rest_cells, terms=rest_terms(check.rest_cells, check.lattice))
         rest = self._rest["terms"]
@@ -253,6 +279,10 @@ def threshold_cells(p: PressConfig) -> float:
     return float(p.threshold) * (int(p.n_grid) / int(p.threshold_grid)) ** 2
 
 
+#: ``PressConfig.terminal``: what the terminal threshold is compared with (paper eq. 12 first, the default).
+TERMINAL_MEASURES = ("chamfer", "displacement")
+
+
 def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
     """The ordered stop rules of ``p``: the travel limit, then the first configured of depth, force, threshold.
 
@@ -264,7 +294,7 @@ def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
     elif p.force is not None:
         rules.append(ForceRule(float(p.force)))
     elif p.threshold is not None:
-        rules.append(ThresholdRule(threshold_cells(p)))
+        rules.append(ThresholdRule(threshold_cells(p), measure=p.terminal))
     return rules
 
 
