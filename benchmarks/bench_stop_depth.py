@@ -16,6 +16,7 @@ grid; the default 0.03 is above both.
 sets the hand speed (default 0.1 c_p). ``--shapes`` presses other objects of the library (``tvrecon.data.shapes``,
 or ``sphere``) the same way, from the top at their ``touch_position``, and ends with one summary row per shape;
 ``all`` is the whole library. A press that reaches its travel limit before the rule is marked ``travel``.
+``--terminal displacement`` stops on the particle-matched displacement instead of eq. 12 (``PressConfig.terminal``).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256                   # the default step
     OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --dt-factor 0.25  # 4x smaller step
@@ -44,6 +45,7 @@ from tvrecon.sim import particle_contact
 from tvrecon.sim.mpm import MPMConfig, cfl_dt
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import SensorConfig
+from tvrecon.sim.stop_rules import TERMINAL_MEASURES
 
 #: ``--rule force`` default: normal contact force at the stop, domain units (see the module docstring)
 FORCE = 0.03
@@ -76,7 +78,7 @@ def press_grids(args: argparse.Namespace, name: str) -> list[tuple]:
     mesh = shape_mesh(name)
     direction = [0.0, 0.0, -1.0]
     pos = EIPSimulator(scaled_pad(128), PressConfig(n_grid=128)).touch_position(mesh, direction)
-    stop = {"threshold_grid": 128} if args.rule == "threshold" else {"force": args.force}
+    stop = {"threshold_grid": 128, "terminal": args.terminal} if args.rule == "threshold" else {"force": args.force}
     rows = []
     for n in args.grids:
         s = pad(n, args.spacing, args.thick_div)
@@ -102,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--force", type=float, default=FORCE, help="--rule force: normal force at the stop, domain units")
     ap.add_argument("--speed-fraction", type=float, default=0.1, help="hand speed / the P-wave speed")
     ap.add_argument("--shapes", nargs="+", default=["gear"], help="objects to press (library names, sphere, or all)")
+    ap.add_argument("--terminal", choices=TERMINAL_MEASURES, default="chamfer", help="what the threshold measures")
     args = ap.parse_args(argv)
     particle_contact.ITERATIONS = args.iterations  # read at every step
 
@@ -120,7 +123,8 @@ def print_rows(args: argparse.Namespace, name: str, rows: list[tuple]) -> None:
     base, img_f = rows[-1][2], rows[-1][4]
     print(
         f"{name}: {args.contact} contact, stop: {args.rule} "
-        f"({'threshold_grid 128' if args.rule == 'threshold' else f'force {args.force:g}'}), dt x {args.dt_factor:g}, "
+        f"({f'threshold_grid 128, {args.terminal}' if args.rule == 'threshold' else f'force {args.force:g}'}), "
+        f"dt x {args.dt_factor:g}, "
         f"{args.iterations} contact passes, spacing {args.spacing:g}, pad 1/{args.thick_div} thick, "
         f"speed {args.speed_fraction:g} c_p"
     )
