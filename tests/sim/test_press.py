@@ -467,13 +467,22 @@ def test_golden_grid_contact_press_image_moments() -> None:
 
 
 def test_stop_rules_are_an_ordered_list_and_depth_raises_max_depth_explicitly() -> None:
-    from tvrecon.sim.stop_rules import DepthRule, ForceRule, ThresholdRule, TravelLimit, stop_rules, travel_for_depth
+    from tvrecon.sim.stop_rules import (
+        DepthRule,
+        DisplacementRule,
+        ForceRule,
+        ThresholdRule,
+        TravelLimit,
+        stop_rules,
+        travel_for_depth,
+    )
 
     kinds = lambda p: [type(r) for r in stop_rules(p, 10)]  # noqa: E731
     assert kinds(PressConfig(depth=2.0, force=1.0)) == [TravelLimit, DepthRule]  # depth > force > threshold
     assert kinds(PressConfig(force=1.0)) == [TravelLimit, ForceRule]
     assert kinds(PressConfig()) == [TravelLimit, ThresholdRule]
     assert kinds(PressConfig(threshold=None)) == [TravelLimit]
+    assert kinds(PressConfig(terminal="displacement")) == [TravelLimit, DisplacementRule]
     p = PressConfig(depth=5.0, max_depth=4.0)
     assert travel_for_depth(p).max_depth == 5.5 and p.max_depth == 4.0  # a copy, raised by the margin
     assert travel_for_depth(PressConfig(depth=1.0)).max_depth == 4.0

@@ -6,6 +6,7 @@ import torch
 
 from tvrecon.sim.sensor import SensorConfig, pad_lattice
 from tvrecon.sim.stop_rules import (
+    DisplacementRule,
     StopCheck,
     ThresholdRule,
     chamfer_reaches,
@@ -108,5 +109,5 @@ def test_displacement_measure_bounds_the_chamfer_and_sees_the_spread() -> None:
     spread[:, :2] = x0.mean(0)[:2] + rel[:, :2] * 1.2  # edge particles 1.5 spacings out
     value = terminal_displacement(spread, x0)
     assert terminal_chamfer(spread, x0, lattice) < 0.5 * value
-    assert ThresholdRule(0.9 * value, measure="displacement").reached(State(), StopCheck(spread, x0, lattice))
+    assert DisplacementRule(0.9 * value).reached(State(), StopCheck(spread, x0, lattice))
     assert not ThresholdRule(0.9 * value).reached(State(), StopCheck(spread, x0, lattice))

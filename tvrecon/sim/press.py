@@ -103,11 +103,11 @@ class PressConfig:
             the stop shrinks as ``n_grid`` grows; the default before issue 15 item 1).
         terminal: what ``threshold`` is compared with: ``"chamfer"`` (default: paper eq. 12, :func:`terminal_chamfer`)
             or ``"displacement"`` (beyond the paper: the same centred deformation with each particle matched to its
-            own rest position, :func:`~tvrecon.sim.stop_rules.terminal_displacement`). Eq. 12's nearest neighbours
-            stop seeing a sideways spread once it passes half the lattice spacing (a quarter cell), so on a face larger
-            than the pad the chamfer stop comes deeper on finer grids (0.61 of the 256 depth at 128); the
-            displacement stop does not (0.98-0.99). Elsewhere the two agree. docs/physics.md, "The stop depth across
-            the object library".
+            own rest position, :func:`~tvrecon.sim.stop_rules.terminal_displacement`, ``DisplacementRule``). Eq. 12's
+            nearest neighbours stop seeing a sideways spread once it passes half the lattice spacing (a quarter
+            cell), so on a face larger than the pad the chamfer stop comes deeper on finer grids (0.61 of the 256
+            depth at 128); the displacement stop does not (0.98-0.99). Elsewhere the two agree. docs/physics.md, "The
+            stop depth across the object library".
 
     The press before issue 15 item 1 (grid-node collider, threshold in the press's own cells) is
     ``PressConfig(contact="grid", threshold_grid=None)`` (CLI: ``--contact grid --threshold-grid 0``).

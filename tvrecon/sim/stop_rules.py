@@ -7,12 +7,14 @@ press (later rules are not evaluated: the terminal chamfer is the costly one)::
     2. DepthRule       ``depth``: indentation past first contact, cells              \\
        ForceRule       ``force``: mean normal contact force over the last 3 steps     > only the first one configured
        ThresholdRule   ``threshold``: terminal chamfer (paper eq. 12), after contact  /  is in the list
+       (DisplacementRule in its place with ``PressConfig.terminal="displacement"``: beyond the paper)
 
 The terminal threshold is in squared cells of the press's own grid, or, with ``PressConfig.threshold_grid`` = N, in
 squared cells of an N-cell grid (a physical unit: :func:`threshold_cells` converts it). It is compared with the
-paper's chamfer, or with ``PressConfig.terminal="displacement"`` with :func:`terminal_displacement`, the same
-deformation matched particle to particle (beyond the paper: eq. 12's nearest neighbours stop seeing a sideways spread
-past half a lattice spacing, docs/physics.md "The stop depth across the object library").
+paper's chamfer, or with ``PressConfig.terminal="displacement"`` (:class:`DisplacementRule`) with
+:func:`terminal_displacement`, the same deformation matched particle to particle (beyond the paper: eq. 12's nearest
+neighbours stop seeing a sideways spread past half a lattice spacing, docs/physics.md "The stop depth across the
+object library").
 
 A ``depth`` rule needs travel: :func:`travel_for_depth` raises ``max_depth`` to ``depth + 0.5`` cells when it is
 shorter, so the travel limit does not stop the press before the requested depth (the placement's collider region
@@ -248,24 +250,30 @@ class ForceRule:
 
 @dataclass(frozen=True)
 class ThresholdRule:
-    """The terminal check of Algorithm 1: stop once in contact and :func:`terminal_chamfer` >= ``threshold``.
-
-    ``measure="displacement"`` compares :func:`terminal_displacement` instead (``PressConfig.terminal``)."""
+    """The terminal check of Algorithm 1: stop once in contact and :func:`terminal_chamfer` >= ``threshold``."""
 
     threshold: float
-    measure: str = "chamfer"
     _rest: dict[str, object] = field(default_factory=dict, compare=False, repr=False)  # rest_terms, per rest layer
 
     def reached(self, state: PressState, check: StopCheck) -> bool:
         if not state.contact:
             return False
-        if self.measure == "displacement":
-            return terminal_displacement(check.contact_cells, check.rest_cells) >= self.threshold
         if self._rest.get("x0") is not check.rest_cells:  # the same rest layer every step of a press
             self._rest.update(x0=check.rest_cells, terms=rest_terms(check.rest_cells, check.lattice))
         rest = self._rest["terms"]
         x, x0, lattice = check.contact_cells, check.rest_cells, check.lattice
         return chamfer_reaches(x, x0, lattice, self.threshold, rest=rest, memo=check.memo)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class DisplacementRule:
+    """``PressConfig.terminal="displacement"`` (beyond the paper): stop once in contact and
+    :func:`terminal_displacement` >= ``threshold``, the terminal check on the particle-matched deformation."""
+
+    threshold: float
+
+    def reached(self, state: PressState, check: StopCheck) -> bool:
+        return state.contact and terminal_displacement(check.contact_cells, check.rest_cells) >= self.threshold
 
 
 def threshold_cells(p: PressConfig) -> float:
@@ -294,7 +302,8 @@ def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
     elif p.force is not None:
         rules.append(ForceRule(float(p.force)))
     elif p.threshold is not None:
-        rules.append(ThresholdRule(threshold_cells(p), measure=p.terminal))
+        rule = DisplacementRule if p.terminal == "displacement" else ThresholdRule
+        rules.append(rule(threshold_cells(p)))
     return rules
 
 
