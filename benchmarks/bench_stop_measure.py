@@ -33,7 +33,6 @@ from bench_physics import scaled_pad
 from bench_stop_depth import shape_mesh
 
 from tvrecon.data.shapes import available_classes
-from tvrecon.sim.mpm import MPMConfig, cfl_dt
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import pad_lattice
 from tvrecon.sim.stop_rules import terminal_chamfer, threshold_cells
@@ -62,10 +61,8 @@ def press_shape(name: str, grids: list[int]) -> list[dict]:
     for n in grids:
         s, p = scaled_pad(n), PressConfig(n_grid=n, record_every=1)
         t0 = time.process_time()
-        sim = EIPSimulator(s, p)
-        r = sim.press(mesh, pos, direction)
-        dt = cfl_dt(MPMConfig(n_grid=n, E=s.E, nu=s.nu, rho=s.rho))
-        step_cells = p.speed_fraction * sim.wave_speed(s) * dt * n  # hand travel per step, cells
+        r = EIPSimulator(s, p).press(mesh, pos, direction)
+        step_cells = (r.depth + float(p.gap)) / r.steps  # the hand's travel (gap + depth) is steps x one step
         H, W = s.resolution
         rest = pad_lattice(s)[: H * W]
         m = measures(r.frames, rest, (H, W, float(s.spacing)))
