@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	# torch first and pinned: the local CPU-usable wheels, never a fresh multi-GB download by a resolver. The x86_64
 	# 2.14.1 wheel is a CUDA build: ~5.6 GB in .venv. --no-cache-dir: no second copy of the downloads in ~/.cache/pip
 	$(BIN)/pip install --quiet --no-cache-dir torch==2.14.1 torchvision==0.29.1
-	$(BIN)/pip install --quiet --no-cache-dir -e '.[dev,robot]'
+	$(BIN)/pip install --quiet --no-cache-dir -e '.[dev,robot,mujoco]'
 	touch $(STAMP)
 
 demo: $(STAMP)
