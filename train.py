@@ -29,6 +29,7 @@ from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from tvrecon.checkpoint import check_checkpoint  # noqa: E402
+from tvrecon.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
 from tvrecon.run import (  # noqa: E402  (also importable from train)
     exit_on_sigterm,
     fix_test_touches,
@@ -81,18 +82,28 @@ def _csv_metrics(trainer: L.Trainer) -> Path | None:
 
 
 def check_training_length(cfg: DictConfig) -> None:
-    """Refuse epoch counts that would report an untrained model or never reach the test.
+    """Refuse epoch (or batch) counts that would report an untrained model or never reach the test.
 
     ``trainer.max_epochs=0`` fits nothing, and the test would print Tables 3/4 of the random initial weights under
     the experiment's name; it is refused unless ``ckpt_path`` gives the weights (then only a warning: the checkpoint
     is tested as it is). ``max_epochs=-1`` is Lightning's "train forever": refused unless ``trainer.max_steps`` or
     ``trainer.max_time`` bounds the run, since without them no test or table ever comes.
+    ``+trainer.limit_train_batches=0`` trains on no batch: refused like ``max_epochs=0``.
 
     Raises:
         ValueError: naming the setting and what to pass instead.
     """
     trainer = cfg.get("trainer") or {}
-    if not cfg.get("train") or trainer.get("fast_dev_run") or trainer.get("max_epochs") is None:
+    if not cfg.get("train") or trainer.get("fast_dev_run"):
+        return
+    limit = trainer.get("limit_train_batches")
+    if limit is not None and not isinstance(limit, bool) and float(limit) == 0 and cfg.get("ckpt_path") is None:
+        raise ValueError(
+            f"trainer.limit_train_batches={limit} trains on no batch: the test and the tables would report the "
+            f"untrained model as this experiment's result. Give a number of batches (+trainer.limit_train_batches=N, "
+            f"N >= 1) or a fraction in (0, 1], or drop it to train on every batch"
+        )
+    if trainer.get("max_epochs") is None:
         return
     max_epochs = int(trainer.max_epochs)
     max_steps = trainer.get("max_steps")
@@ -184,7 +195,11 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return {"metrics": metrics, "result": result, "tables": tables, "output_dir": str(out_dir), "best_ckpt": best}
 
 
+PROG = "python train.py"
+
+
 @hydra.main(version_base="1.3", config_path="configs", config_name="train.yaml")
+@hydra_task(PROG)
 def main(cfg: DictConfig) -> float | None:
     """Hydra entry point; returns the optimized metric for sweepers."""
     out = train(cfg)
@@ -193,4 +208,4 @@ def main(cfg: DictConfig) -> float | None:
 
 
 if __name__ == "__main__":
-    main()
+    run_hydra_cli(main, prog=PROG)  # errors: one line, exit 2 (bad input) / 1 / 130; --debug keeps the traceback

@@ -1,6 +1,7 @@
 """Geometry helpers shared by the simulator, the data pipeline, the models and the robot demo.
 
-One owner each for: the input check of a triangle mesh (`check_mesh`), two unit vectors perpendicular to a
+One owner each for: the input check of a triangle mesh (`check_mesh`), reading a user's mesh file with errors that
+name the file (`read_mesh_file`), two unit vectors perpendicular to a
 direction (`perpendicular_basis`), and the world -> camera transform of the OpenCV convention (`world_to_camera`
 for points, `rotate_to_camera` for directions and normals; ``RT = [R | t]`` maps world to camera, x_cam = R x + t).
 The module depends on no other part of ``tvrecon``, so every layer may import it.
@@ -8,13 +9,15 @@ The module depends on no other part of ``tvrecon``, so every layer may import it
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 import trimesh
 from kornia.geometry.linalg import transform_points
 from torch import Tensor
 
-__all__ = ["check_mesh", "perpendicular_basis", "rt_to_matrix", "world_to_camera", "rotate_to_camera"]
+__all__ = ["check_mesh", "read_mesh_file", "perpendicular_basis", "rt_to_matrix", "world_to_camera", "rotate_to_camera"]
 
 
 def check_mesh(mesh: trimesh.Trimesh, what: str = "mesh", require_area: bool = False) -> None:
@@ -35,6 +38,46 @@ def check_mesh(mesh: trimesh.Trimesh, what: str = "mesh", require_area: bool = F
         raise ValueError(f"{what} has zero surface area ({n_faces} degenerate faces): pass a non-empty triangle mesh")
     if not np.isfinite(np.asarray(mesh.vertices)).all():
         raise ValueError(f"{what} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
+
+
+def read_mesh_file(path: str | Path, what: str = "mesh file") -> trimesh.Trimesh:
+    """Load a triangle mesh file (.obj, .stl, .ply, .glb, .off, ...) or raise ValueError naming the file.
+
+    trimesh's readers fail in many ways on a bad file (garbage bytes end in "No module named 'charset_normalizer'",
+    which sends users to install packages), and its processing silently drops NaN vertices (leaving a hole):
+    here any reader failure says the file is not a readable mesh, the raw vertices are checked for NaN / inf, and
+    a file without triangles is named.
+
+    Returns:
+        The processed trimesh (V vertices, F faces), in the file's own units.
+    Raises:
+        ValueError: the file is missing, unreadable, holds no triangles or has non-finite vertices.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{what} {str(path)!r} does not exist: pass the path of an existing mesh file")
+    no_triangles = f"{what} {str(path)!r} holds no triangles: pass a triangle mesh (obj, stl, ply, glb, off)"
+    raw = _load(path, what, process=False)
+    if not isinstance(raw, trimesh.Trimesh) or len(raw.faces) == 0:
+        raise ValueError(no_triangles)
+    if not np.isfinite(np.asarray(raw.vertices)).all():
+        raise ValueError(
+            f"{what} {str(path)!r} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)"
+        )
+    mesh = _load(path, what, process=True)
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(no_triangles)
+    return mesh
+
+
+def _load(path: Path, what: str, process: bool) -> trimesh.Trimesh | trimesh.Scene:
+    try:
+        return trimesh.load(path, force="mesh", process=process)
+    except Exception as err:  # trimesh's readers fail in many ways (e.g. an ImportError of an optional decoder)
+        raise ValueError(
+            f"{what} {str(path)!r} is not a readable mesh ({type(err).__name__}: {err}): is it a valid mesh file "
+            f"(.obj, .stl, .ply, .glb, .off)? Re-export it from a mesh tool"
+        ) from err
 
 
 _X, _Y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import lightning as L
 from lightning.pytorch.utilities.exceptions import SIGTERMException
@@ -63,6 +63,9 @@ def last_checkpoint(trainer: L.Trainer) -> Path | None:
 def exit_on_sigterm(trainer: L.Trainer, stage: str, hint: str | None = None) -> Iterator[None]:
     """Turn Lightning's SIGTERM stop (a ``SystemExit`` with code 0) into exit status 143 and a message.
 
+    Ctrl-C likewise (Lightning exits 1 after its graceful shutdown): exit status 130 = 128 + SIGINT, the same
+    message naming the checkpoint to resume from.
+
     Lightning stops its loops cleanly on SIGTERM but raises ``SIGTERMException``, a ``SystemExit(None)`` that would
     exit 0, so a script or scheduler would take a killed run for a finished one. Here the run says that it was
     terminated, at which epoch/step and what to do next (``hint``; by default the last checkpoint to resume from),
@@ -71,17 +74,26 @@ def exit_on_sigterm(trainer: L.Trainer, stage: str, hint: str | None = None) -> 
     try:
         yield
     except SIGTERMException:
-        if hint is None:
-            ckpt = last_checkpoint(trainer)
-            hint = (
-                f"the last checkpoint is {ckpt.resolve()}: resume with ckpt_path={ckpt.resolve()}"
-                if ckpt is not None
-                else "no checkpoint was saved before the signal: rerun from scratch"
-            )
-        msg = f"{stage} terminated by SIGTERM at epoch {trainer.current_epoch}, step {trainer.global_step}; {hint}"
-        log.error(msg)
-        print(msg, file=sys.stderr, flush=True)
-        sys.exit(128 + signal.SIGTERM)
+        _exit_stopped(trainer, stage, hint, "terminated by SIGTERM", signal.SIGTERM)
+    except SystemExit as stop:
+        # Lightning answers Ctrl-C with "attempting graceful shutdown" and sys.exit(1): a failed run's status
+        if stop.code == 1 and trainer.interrupted:
+            _exit_stopped(trainer, stage, hint, "interrupted (Ctrl-C)", signal.SIGINT)
+        raise
+
+
+def _exit_stopped(trainer: L.Trainer, stage: str, hint: str | None, how: str, signum: int) -> NoReturn:
+    if hint is None:
+        ckpt = last_checkpoint(trainer)
+        hint = (
+            f"the last checkpoint is {ckpt.resolve()}: resume with ckpt_path={ckpt.resolve()}"
+            if ckpt is not None
+            else "no checkpoint was saved before the signal: rerun from scratch"
+        )
+    msg = f"{stage} {how} at epoch {trainer.current_epoch}, step {trainer.global_step}; {hint}"
+    log.error(msg)
+    print(msg, file=sys.stderr, flush=True)
+    sys.exit(128 + signum)
 
 
 def fix_test_touches(data_cfg: DictConfig) -> None:

@@ -373,4 +373,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from tvrecon.cli_errors import run_cli
+
+    run_cli(main, prog="python -m tvrecon.tables")  # errors: one line, exit 2/1/130

@@ -31,17 +31,20 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from tqdm.auto import tqdm
 
+from tvrecon.cli_errors import RESUME_HINT
 from tvrecon.data.cache import cache_key
 from tvrecon.data.datasets import GeneratedDataset
 
-__all__ = ["GenerateStats", "pregenerate", "shard_indices", "parse_shard", "main"]
+__all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "parse_shard", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +120,58 @@ def _work(index: int) -> tuple[int, bool]:
     return index, hit
 
 
+class WorkerDied(RuntimeError):
+    """A worker process of :func:`pregenerate` died (killed by a signal, e.g. the OOM killer's SIGKILL)."""
+
+
+def _pool_generate(dataset: GeneratedDataset, todo: list[int], workers: int, desc: str) -> Iterator[int]:
+    """Generate ``todo`` in ``workers`` spawned processes; yields each index as it is done.
+
+    A ``ProcessPoolExecutor`` (not ``multiprocessing.Pool``, which waits forever for a worker killed by ``kill -9``)
+    notices a dead worker at once: the pool is stopped and :class:`WorkerDied` names the signal and how to resume.
+    """
+    ctx = mp.get_context("spawn")  # fork after torch/OpenMP use is unsafe
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(dataset,))
+    procs: list[mp.process.BaseProcess] = []
+    clean = False
+    try:
+        futures = [pool.submit(_work, i) for i in todo]
+        procs = list(pool._processes.values())  # all spawned by now; kept to name the signal of a dead one
+        for fut in as_completed(futures):
+            yield fut.result()[0]
+        clean = True
+    except BrokenProcessPool as err:
+        raise WorkerDied(_dead_worker_message(procs, desc)) from err
+    finally:
+        pool.shutdown(wait=clean, cancel_futures=True)
+        for p in procs:  # Ctrl-C, SIGTERM or an error: no worker outlives the run
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=5)
+
+
+def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str) -> str:
+    for p in procs:
+        p.join(timeout=1)
+    dead = [p for p in procs if p.exitcode is not None and p.exitcode != 0]
+    killed = [p for p in dead if p.exitcode != -signal.SIGTERM] or dead  # the pool SIGTERMs the others itself
+    if killed and killed[0].exitcode is not None and killed[0].exitcode < 0:
+        how = f"was killed by {signal.Signals(-killed[0].exitcode).name}"
+        if killed[0].exitcode == -signal.SIGKILL:
+            how += " (the kernel's out-of-memory killer sends it when memory runs out; fewer workers= use less)"
+    elif killed:
+        how = f"exited with status {killed[0].exitcode}"
+    else:
+        how = "died"
+    pid = f" (pid {killed[0].pid})" if killed else ""
+    split = f" of split {desc!r}" if desc else ""
+    return (
+        f"a generate worker process{pid}{split} {how}; the pool was stopped. The items finished so far are cached: "
+        f"{RESUME_HINT}"
+    )
+
+
 def pregenerate(
     dataset: GeneratedDataset,
     workers: int | None = None,
@@ -139,9 +194,11 @@ def pregenerate(
     """
     if not dataset.cache.enabled:
         raise ValueError("pregenerate needs a dataset with a cache directory (cache_dir=None disables caching)")
-    workers = int(workers) if workers else (os.cpu_count() or 1)
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    if workers is None:
+        workers = os.cpu_count() or 1
+    elif isinstance(workers, bool) or int(workers) != workers or workers < 1:  # 0 once meant "all cores" silently
+        raise ValueError(f"workers must be a whole number >= 1 (leave it out for one per core), got {workers!r}")
+    workers = int(workers)
     indices = shard_indices(len(dataset), shard, rank_world)
     stats = GenerateStats(items=len(indices))
     todo = [i for i in indices if dataset.cache.load(cache_key(dataset.spec(i))) is None]
@@ -164,13 +221,9 @@ def pregenerate(
                 stats.generated += 1
                 bar.update(per_item)
         else:
-            ctx = mp.get_context("spawn")  # fork after torch/OpenMP use is unsafe
-            with ctx.Pool(min(workers, len(todo)), initializer=_init_worker, initargs=(dataset,)) as pool:
-                for _ in pool.imap_unordered(_work, todo, chunksize=1):
-                    stats.generated += 1
-                    bar.update(per_item)
-                pool.close()  # clean shutdown (the context manager alone terminates the workers)
-                pool.join()
+            for _ in _pool_generate(dataset, todo, min(workers, len(todo)), desc):
+                stats.generated += 1
+                bar.update(per_item)
     finally:
         bar.close()
         stats.seconds = time.perf_counter() - start
@@ -269,4 +322,6 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
 
 
 if __name__ == "__main__":
-    main()
+    from tvrecon.cli_errors import run_cli
+
+    run_cli(main, prog="python -m tvrecon.data.generate", resume=True)  # errors: one line, exit 2/1/130

@@ -235,4 +235,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from tvrecon.cli_errors import run_cli
+
+    run_cli(main, prog="python -m tvrecon.data.preview")  # errors: one line, exit 2/1/130

@@ -21,6 +21,7 @@ from torch import Tensor, nn
 
 from tvrecon.data.touch_select import set_loader_epoch
 from tvrecon.models.class_names import datamodule_class_names
+from tvrecon.models.finite_loss import check_finite_loss
 from tvrecon.models.optim import configure_optimizers
 
 __all__ = ["ClassificationModule", "gather_touches", "other_object_index", "select_touches", "touch_index"]
@@ -206,6 +207,7 @@ class ClassificationModule(L.LightningModule):
         logits = self(*inputs)
         loss = F.cross_entropy(logits, batch["label"])
         acc = (logits.argmax(1) == batch["label"]).float().mean()
+        check_finite_loss(self, {"loss": loss, "acc": acc})  # a diverged run stops here, naming the step and lr
         B = logits.shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=B)
         self.log("train/acc", acc, prog_bar=True, batch_size=B)

@@ -28,6 +28,7 @@ from torch import Tensor, nn
 
 from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
+from tvrecon.models.finite_loss import check_finite_loss
 from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
 from tvrecon.models.recon_batch import PATCH_KEYS, TOUCH_CONTROLS, gt_to_camera, keep_first_touches
 from tvrecon.models.recon_protocol import ReconstructionTestProtocol
@@ -199,6 +200,7 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         if weight > 0 and out.get("touch") is not None:
             terms["patch"] = sum(patch_to_mesh_loss(v, out["touch"]) for v in out["verts"])
             terms["loss"] = terms["loss"] + weight * terms["patch"]
+        check_finite_loss(self, terms)  # a diverged run stops here, not with NaN results at the end
         B = points.shape[0]
         for key, value in terms.items():
             self.log(f"train/{key}", value, prog_bar=True, batch_size=B)

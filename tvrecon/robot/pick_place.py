@@ -26,6 +26,7 @@ from tqdm.auto import tqdm
 
 from tvrecon.atomic import atomic_open
 from tvrecon.config_utils import coerce_config
+from tvrecon.geometry import read_mesh_file
 from tvrecon.robot.controller import PHASES, ArmController, hand_orientation
 from tvrecon.robot.finger import LazySimulator, PadConfig, TactileFinger
 from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
@@ -99,15 +100,15 @@ class PickPlaceResult:
 def load_object_mesh(name_or_path: str, seed: int = 0) -> trimesh.Trimesh:
     """A procedural class (``tvrecon.data.shapes.make_shape``) or a mesh file (anything ``trimesh.load`` reads)."""
     path = Path(str(name_or_path)).expanduser()
-    if path.suffix and (path.exists() or os.sep in str(name_or_path)):
-        if not path.exists():
+    mesh_suffix = path.suffix.lower().lstrip(".") in trimesh.available_formats()
+    if path.suffix and (path.exists() or os.sep in str(name_or_path) or mesh_suffix):
+        if not path.exists():  # `object=mug.obj` is a file name, not an unknown shape class
             raise ValueError(
-                f"object mesh file {str(path)!r} does not exist: pass an existing mesh path or a class name"
+                f"object mesh file {str(path)!r} does not exist (in {Path.cwd()}): pass an existing mesh path "
+                f"or a class name"
             )
-        mesh = trimesh.load(path, force="mesh")
-        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-            raise ValueError(f"{str(path)!r} holds no triangles: pass a triangle mesh (obj, stl, ply, glb, off)")
-        return mesh
+        # unreadable bytes and NaN vertices are named here (trimesh would say "charset_normalizer" / drop them)
+        return read_mesh_file(path, "object mesh file")
     from tvrecon.data.shapes import make_shape
 
     return make_shape(str(name_or_path), seed=seed)
@@ -336,16 +337,22 @@ def _collect_log(
     return log
 
 
+PROG = "python -m tvrecon.robot.pick_place"
+
+
 def _hydra_entry() -> None:
     import hydra
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import DictConfig, OmegaConf
+
+    from tvrecon.cli_errors import hydra_task
 
     config_dir = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
 
     outcome: dict[str, bool] = {}
 
     @hydra.main(version_base="1.3", config_path=config_dir, config_name="pick_place")
+    @hydra_task(PROG)
     def _main(dcfg: DictConfig) -> None:
         d = OmegaConf.to_container(dcfg, resolve=True)
         if not d.get("out_dir"):
@@ -366,9 +373,13 @@ def _hydra_entry() -> None:
 def main() -> None:
     """Console entry point (Hydra): ``python -m tvrecon.robot.pick_place object=can``.
 
-    Exits with status 1 when the run ends ``[FAILED]`` (the log, gif and strip are still written), 0 on ``[OK]``.
+    Exits with status 1 when the run ends ``[FAILED]`` (the log, gif and strip are still written), 0 on ``[OK]``;
+    bad input (a missing or unreadable mesh, a wrong option) is one line on stderr and exit status 2, Ctrl-C 130
+    (``tvrecon.cli_errors``; ``--debug`` keeps the traceback).
     """
-    _hydra_entry()
+    from tvrecon.cli_errors import run_hydra_cli
+
+    run_hydra_cli(_hydra_entry, prog=PROG)
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import trimesh
 
+from tvrecon.cli_errors import call_cli
 from tvrecon.sim.particle_contact import CONTACT_MODES
 from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading
 from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, save_tactile_png
@@ -31,6 +32,7 @@ from tvrecon.sim.sensor_presets import SENSOR_PRESETS
 from tvrecon.sim.stop_rules import TERMINAL_MEASURES
 
 SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
+PROG = "python -m tvrecon.sim"
 
 BUILTIN_SHAPES = ("torus", "gear", "sphere", "cube")
 SENSOR_OUTPUTS = ("force", "markers", "rgb")
@@ -122,6 +124,8 @@ def check_outputs(args: argparse.Namespace) -> Path:
         ValueError: ``--out`` is a file, under a file, or not writable; ``--frames`` < 1 (deformation.png and the
             .ply files need a frame) or ``--ply`` < 0.
     """
+    if args.threads < 0:
+        raise ValueError(f"--threads must be >= 0 (0: torch's default number of threads), got {args.threads}")
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1 (frames drawn in deformation.png), got {args.frames}")
     if args.ply < 0:
@@ -291,7 +295,7 @@ def write_sensor_outputs(
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m tvrecon.sim", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("press", help="press the sensor pad onto a shape and write pictures")
     p.add_argument("--shape", default="torus", help=f"one of {BUILTIN_SHAPES} or a mesh file path")
@@ -347,17 +351,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--marker-radius", type=float, default=1.0, help="marker dot radius (taxels)")
     p.add_argument("--height-gain", type=float, default=3.0, help="height exaggeration of the RGB image")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
+    p.add_argument("--debug", action="store_true", help="on an error, show the full traceback (not one line)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        run_press(args)
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+def _main(argv: list[str]) -> int:
+    run_press(build_parser().parse_args(argv))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The press CLI; returns the exit status: 0, 2 (bad input, one line on stderr), 1 (the press failed).
+
+    ``--debug`` keeps the traceback (``tvrecon.cli_errors``).
+    """
+    return call_cli(_main, argv, prog=PROG)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,80 @@
+"""Issue 28 item 2: a generate worker killed by ``kill -9`` (as the OOM killer would) stops the run at once.
+
+``multiprocessing.Pool`` waited forever for the dead worker's result; the pool now reports it and the command exits
+1 with one line naming the signal and how to resume.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tvrecon.cli_errors import RESUME_HINT
+
+ROOT = Path(__file__).resolve().parents[2]
+ARGS = [
+    "preset=cls_tiny",
+    "train.num_objects=4",
+    "touches_per_object=2",
+    "sensor.resolution=[8,8]",
+    "sensor.layers=3",
+    "press.n_grid=32",
+    "press.max_depth=1.5",
+    "touch.strengths=[{threshold:0.05}]",
+]
+
+
+def _workers(pid: int) -> list[int]:
+    """The pool's worker processes among the children of ``pid`` (not multiprocessing's resource tracker)."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        for child in (task / "children").read_text().split():
+            try:
+                cmd = Path(f"/proc/{child}/cmdline").read_bytes().replace(b"\0", b" ")
+            except OSError:
+                continue
+            if b"spawn_main" in cmd and b"resource_tracker" not in cmd:
+                found.append(int(child))
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc to find the worker processes")
+def test_a_worker_killed_by_sigkill_stops_the_pool_naming_the_signal(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "tvrecon.data.generate", *ARGS, f"cache_dir={tmp_path}", "workers=2", "splits=train"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        workers: list[int] = []
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            workers = _workers(proc.pid)
+        assert len(workers) == 2, f"no pool workers seen (exit {proc.poll()})"
+        os.kill(workers[0], signal.SIGKILL)
+        killed_at = time.monotonic()
+        _, err = proc.communicate(timeout=60)  # before: the run hung here until killed from outside
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert time.monotonic() - killed_at < 30
+    assert proc.returncode == 1
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("python -m tvrecon.data.generate: error: WorkerDied: a generate worker process")
+    assert f"(pid {workers[0]})" in lines[0] and "killed by SIGKILL" in lines[0] and RESUME_HINT in lines[0]
+    assert all(not Path(f"/proc/{w}").exists() or _zombie(w) for w in workers)  # no worker outlives the run
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1].startswith("Z")
+    except OSError:
+        return True
