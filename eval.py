@@ -150,12 +150,20 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
     return result
 
 
+def _last_instead(ckpt: Path) -> Path | None:
+    """The run's ``last.ckpt`` when ``ckpt`` is another (best) checkpoint of the same folder, else None."""
+    last = ckpt.parent / "last.ckpt"
+    return last if last.is_file() and last.resolve() != ckpt.resolve() else None
+
+
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Evaluate every checkpoint named by ``cfg`` and write/print the tables. Returns results and table text.
 
-    In a sweep (``run_dir``) a truncated or corrupt checkpoint is skipped with a warning and the tables of the other
-    runs are still written (the skipped files are returned under ``"skipped"``); a single ``ckpt_path`` that cannot
-    be read raises :class:`~tvrecon.checkpoint.CorruptCheckpointError` naming the file.
+    In a sweep (``run_dir``) a truncated or corrupt best checkpoint falls back to the run's ``last.ckpt`` with a
+    warning; a run whose checkpoints are all unreadable, or whose folder has no ``.hydra/config.yaml``, is skipped
+    with a warning and the tables of the other runs are still written (the skipped files are returned under
+    ``"skipped"``); a single ``ckpt_path`` that cannot be read raises
+    :class:`~tvrecon.checkpoint.CorruptCheckpointError` naming the file.
     """
     if cfg.get("torch_threads"):
         torch.set_num_threads(int(cfg.torch_threads))
@@ -171,11 +179,25 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         except CorruptCheckpointError as err:
             if cfg.get("run_dir") is None:
                 raise
+            last = _last_instead(ckpt)
+            if last is not None:
+                log.warning("%s: %s; evaluating that run's %s instead", ckpt, err, last.name)
+                try:
+                    results.append(evaluate_checkpoint(last, cfg, out_root / name))
+                    continue
+                except CorruptCheckpointError as err_last:
+                    err = err_last
             log.warning("skipping %s: %s (evaluate that run with prefer=last, or retrain it)", ckpt, err)
+            skipped.append(str(ckpt))
+        except FileNotFoundError as err:  # e.g. a run folder without .hydra/config.yaml: the sweep goes on
+            if cfg.get("run_dir") is None:
+                raise
+            log.warning("skipping %s: %s", ckpt, err)
             skipped.append(str(ckpt))
     if not results:
         raise ValueError(
-            f"no checkpoint below {cfg.get('run_dir')} could be read (all truncated or corrupt): {skipped}"
+            f"no checkpoint below {cfg.get('run_dir')} could be evaluated (truncated or corrupt checkpoints, or run "
+            f"folders without .hydra/config.yaml; the warnings above name each): {skipped}"
         )
     text = report_tables(results, out_root)
     if skipped:

@@ -30,6 +30,7 @@ Touch controls (when a model was tested with ``touch_controls``): own touches ag
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,8 @@ from tvrecon.atomic import atomic_write_text
 from tvrecon.cls_report import build_table2, write_classification_plots
 from tvrecon.data.shapes.registry import RECON_CLASSES
 from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, fmt, mean_std
+
+log = logging.getLogger(__name__)
 
 # re-exported: the tables' public names from one module
 __all__ = [
@@ -326,7 +329,8 @@ def collect_results(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
 
     Raises:
         FileNotFoundError: a path does not exist, or no ``metrics.json`` was found at all.
-        ValueError: a file is not valid JSON (named, with the parse error).
+        ValueError: no file is valid JSON (each is named); a bad file among good ones is skipped with a warning
+            (a run killed while writing it must not stop the tables of the others, as eval.py skips a bad run).
     """
     import json
 
@@ -340,11 +344,15 @@ def collect_results(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
             f"no metrics.json below {[str(p) for p in paths]}: train.py (test=true) and eval.py write one per run"
         )
     results = []
+    bad = []
     for f in files:
         try:
             results.append(json.loads(f.read_text()))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{f} is not valid JSON ({err}); re-run eval.py on its checkpoint") from err
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:  # e.g. truncated by a killed run: skip that run
+            log.warning("skipping %s: it is not valid JSON (%s); re-run eval.py on its checkpoint", f, err)
+            bad.append(str(f))
+    if not results:
+        raise ValueError(f"{', '.join(bad)} is not valid JSON (truncated?): re-run eval.py on its checkpoint")
     return results
 
 
