@@ -1,0 +1,130 @@
+"""The paper's touches (tvrecon.data.touch_sweep): centre aim, side-to-top sweep, depth, the presets' ratios, and a
+touch that loses a thin part pressed again."""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from omegaconf import OmegaConf
+
+from tvrecon.data.datasets import TactileClassificationDataset
+from tvrecon.data.touch_sweep import AUTHORS_RATIOS, PaperSweepTouchPolicy, eip_geometry_ratios, sweep_directions
+from tvrecon.data.touches import make_touch_policy, sample_touches
+from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "data"
+
+
+def _block(group: str, name: str) -> dict:
+    cfg = OmegaConf.load(CONFIGS / group / f"{name}.yaml")
+    out = {}
+    for d in cfg.pop("defaults", []):
+        if d != "_self_":
+            out.update(OmegaConf.to_container(OmegaConf.load(CONFIGS / group / f"{d}.yaml")))
+    out.update(OmegaConf.to_container(cfg))
+    return out
+
+
+def _tiny_sim() -> EIPSimulator:
+    return EIPSimulator(SensorConfig(**_block("sensor", "eip_tiny")), PressConfig(**_block("press", "eip_tiny")))
+
+
+def test_sweep_directions_go_from_the_side_to_the_top() -> None:
+    d = sweep_directions(0.3, np.array([0.0, 45.0, 90.0]))
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert abs(d[0, 2]) < 1e-12 and np.allclose(d[0, :2], [-np.cos(0.3), -np.sin(0.3)])  # horizontal, into the object
+    assert np.allclose(d[2], [0.0, 0.0, -1.0])  # from the top: straight down
+    assert np.isclose(np.degrees(np.arcsin(-d[1, 2])), 45.0)
+
+
+def test_policy_aims_through_the_centre_sweeps_evenly_and_sizes_the_depth() -> None:
+    sim = _tiny_sim()
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    box.apply_translation([0.2, -0.1, 0.05])
+    t = sample_touches(box, 10, seed=3, policy=make_touch_policy(_block("touch", "paper_sweep")), sim=sim)
+    assert torch.allclose(t.positions, torch.tensor(box.bounds.mean(0), dtype=torch.float32).expand(10, 3))
+    elev = np.degrees(np.arcsin(-t.directions[:, 2].double().numpy()))
+    assert np.allclose(elev, np.linspace(0.0, 90.0, 10), atol=1e-4)
+    horizontal = t.directions[:-1, :2].double().numpy()
+    azimuths = np.arctan2(horizontal[:, 1], horizontal[:, 0])
+    assert np.allclose(azimuths, azimuths[0], atol=1e-5)  # one vertical plane per object
+    extent_cells = 1.0 / sim.cfg.domain_size * sim.cfg.n_grid
+    assert all(s == {"depth": round(0.12 * extent_cells, 4)} for s in t.strengths)
+    other = sample_touches(box, 10, seed=4, policy=PaperSweepTouchPolicy(), sim=sim)
+    assert not torch.allclose(other.directions[0], t.directions[0])  # the azimuth is drawn per object
+
+
+def test_policy_needs_the_simulator_and_checks_its_fields() -> None:
+    box = trimesh.creation.box()
+    with pytest.raises(ValueError, match="pass sim="):
+        sample_touches(box, 3, seed=0, policy=PaperSweepTouchPolicy())
+    with pytest.raises(ValueError, match="depth_fractions"):
+        PaperSweepTouchPolicy(depth_fractions=[0.7])
+    with pytest.raises(ValueError, match="elevation_deg"):
+        PaperSweepTouchPolicy(elevation_deg=[0.0, 120.0])
+    with pytest.raises(ValueError, match="aim"):
+        PaperSweepTouchPolicy(aim="corner")
+
+
+@pytest.mark.parametrize(
+    ("sensor", "press", "tol"), [("eip", "eip", 0.03), ("eip_cpu", "eip_cpu", 0.06), ("eip_tiny", "eip_tiny", 0.1)]
+)
+def test_presets_keep_the_authors_ratios(sensor: str, press: str, tol: float) -> None:
+    r = eip_geometry_ratios(SensorConfig(**_block("sensor", sensor)), PressConfig(**_block("press", press)))
+    assert r["object_fraction"] == pytest.approx(AUTHORS_RATIOS["object_fraction"])
+    assert r["pad_ratio"] == pytest.approx(AUTHORS_RATIOS["pad_ratio"], rel=tol)
+    assert r["thickness_ratio"] == pytest.approx(AUTHORS_RATIOS["thickness_ratio"], rel=0.25)
+    if sensor == "eip":  # the authors' own pad: 61 x 10 x 61 particles on 128^3
+        assert r["pad_particles"] == 61 * 61 * 10 and r["object_cells"] == pytest.approx(20.48)
+
+
+def test_a_top_press_shows_the_whole_face_and_a_sphere_reads_round() -> None:
+    """The pad larger than the object reads the object's outline: a cube's top face is a square of pushed-in taxels
+    the size of the face, a sphere's a small round cap (control: same pad, same depth)."""
+    sim = _tiny_sim()
+    policy = PaperSweepTouchPolicy(elevation_deg=[90.0, 90.0])
+    spacing_world = sim.sensor.spacing * sim.cfg.domain_size / sim.cfg.n_grid
+    areas = {}
+    for name, mesh in {"cube": trimesh.creation.box(), "sphere": trimesh.creation.icosphere(3, radius=0.5)}.items():
+        t = sample_touches(mesh, 1, seed=0, policy=policy, sim=sim)
+        r = sim.press_batch(mesh, t.positions, t.directions, **t.strengths[0])[0]
+        assert bool(r.contact)
+        pushed = r.image[2] > 0.5 * float(r.image[2].max())
+        areas[name] = int(pushed.sum())
+    face_taxels = (1.0 / spacing_world) ** 2
+    assert 0.6 * face_taxels < areas["cube"] < 1.2 * face_taxels
+    assert areas["sphere"] < 0.5 * areas["cube"]
+
+
+def test_a_touch_that_loses_a_thin_part_is_pressed_again() -> None:
+    """The fork's tines and handle are under a cell thick on eip_tiny's grid: the depth stop, counted from where the
+    ray cast met them, ends before the pad feels them; the dataset presses those touches again on the eq. 12 stop with
+    the travel of the whole object, and some then read the fork (the rest stay blank, ``contact`` False)."""
+    ds = TactileClassificationDataset(
+        num_objects=6,
+        touches_per_object=10,
+        touch=_block("touch", "paper_sweep"),
+        cache_dir=None,
+        sensor=_block("sensor", "eip_tiny"),
+        press=_block("press", "eip_tiny"),
+    )
+    index = 5
+    assert ds.object_of(index) == ("fork", 0)
+    mesh, seed = ds.mesh(index), ds.seeds(index)[0]
+    t = sample_touches(mesh, 10, seed=seed, policy=ds.touch, sim=ds.simulator)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        first = np.array(
+            [bool(r.contact) for r in ds.simulator.press_batch(mesh, t.positions, t.directions, **t.strengths[0])]
+        )
+    out = ds._simulate(mesh, seed)
+    rescued = out["contact"] & ~first
+    assert (~first).sum() >= 2 and rescued.sum() >= 1
+    assert (out["contact"] | ~first).all()  # a touch that felt the fork keeps its reading
+    assert (out["tactile"][rescued, 2].reshape(int(rescued.sum()), -1).max(1) > 0.02).all()  # blank: < 1e-4
+    assert np.allclose(out["tactile"][~out["contact"]], 0.0, atol=0.01)  # what still misses reads blank
