@@ -19,6 +19,10 @@ from tvrecon.data.shapes.usermeshes import UserMesh, UserMeshReport, scan_user_m
 log = logging.getLogger(__name__)
 
 SPLITS: tuple[str, ...] = ("train", "val", "test")
+#: How train, val and test objects relate (``ObjectLibrary(protocol=...)``): ``"unseen"`` (every object its own shape:
+#: test shapes are never seen in training) or ``"shared_base"`` (the paper's Table 1 caption and section 4.3 read
+#: literally: one base mesh per class, every object of every split a random deformation of it).
+PROTOCOLS: tuple[str, ...] = ("unseen", "shared_base")
 SHAPES_VERSION = 1  # bump when a builder or the deformation changes, so caches keyed on params() are invalidated
 _TEST_EVERY = 5  # user meshes: every 5th file of a class (at least one when a class has >= 2 files) is test-only
 
@@ -27,8 +31,13 @@ class ObjectLibrary:
     """Objects for the datasets: ``get(cls, instance, split)`` returns a watertight, unit-box-normalized mesh.
 
     Procedural instance seeds are ``(seed * 1_000_003 + instance) * 3 + split_index``, so train, val and test never
-    share a shape seed. User classes (``user_root/<class>/*.obj|stl|ply|glb``) are added to the procedural ones, or
-    replace the procedural class of the same name; their files are split so that test files are never used for
+    share a shape seed. With ``protocol="unseen"`` (default) that seed builds the shape and deforms it, so every object
+    is its own shape; with ``protocol="shared_base"`` every object of a class is built from one base seed (the
+    seed of train instance 0) and only its deformation follows its own seed: train and test are random deformations
+    of one base mesh per class (``deform`` must then be > 0).
+
+    User classes (``user_root/<class>/*.obj|stl|ply|glb``) are added to the procedural ones, or replace the
+    procedural class of the same name; their files are split so that test files are never used for
     train or val (a class with a single file is shared by all splits, with a warning: only the deformation differs).
 
     Args:
@@ -36,6 +45,8 @@ class ObjectLibrary:
         user_root: optional folder of user meshes, one subfolder per class.
         deform: deformation strength (fraction of the object size, 0 disables; see :func:`deform_mesh`).
         seed: library seed; different seeds give different instances for the same (cls, instance, split).
+        protocol: the split protocol, one of :data:`PROTOCOLS` (see above); user classes follow it too (``shared_base``
+            uses a class's first file for every split).
         cache_size: number of built meshes kept in memory (LRU).
     """
 
@@ -46,13 +57,22 @@ class ObjectLibrary:
         deform: float = 0.1,
         seed: int = 0,
         cache_size: int = 64,
+        protocol: str = "unseen",
     ) -> None:
         if not np.isfinite(deform) or not 0.0 <= deform <= 0.5:
             raise ValueError(f"deform must be a strength in [0, 0.5], got {deform}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
+        if protocol == "shared_base" and deform <= 0:
+            raise ValueError(
+                "protocol='shared_base' makes every object a random deformation of one base mesh per class, so it "
+                f"needs deform > 0 (got {deform}): with no deformation train and test objects would be identical"
+            )
         self.deform = float(deform)
         self.seed = int(seed)
+        self.protocol = str(protocol)
         self.user_root = Path(user_root) if user_root is not None else None
         self.user: dict[str, list[UserMesh]] = {}
         self.report = UserMeshReport()
@@ -85,7 +105,10 @@ class ObjectLibrary:
 
     def __repr__(self) -> str:
         n_user = sum(c in self.user for c in self.classes)
-        return f"ObjectLibrary({len(self.classes)} classes, {n_user} from user meshes, deform={self.deform})"
+        return (
+            f"ObjectLibrary({len(self.classes)} classes, {n_user} from user meshes, deform={self.deform}, "
+            f"protocol={self.protocol!r})"
+        )
 
     def label(self, cls: str | int) -> int:
         """Integer label (index in ``classes``) of a class name or index."""
@@ -109,6 +132,8 @@ class ObjectLibrary:
 
     def _user_files(self, name: str, split: str) -> list[UserMesh]:
         items = self.user[name]
+        if self.protocol == "shared_base":
+            return items[:1]
         if len(items) < 2:
             return items
         test = [i for i in range(len(items)) if i % _TEST_EVERY == _TEST_EVERY - 1] or [len(items) - 1]
@@ -129,6 +154,9 @@ class ObjectLibrary:
             "deform": self.deform,
             "version": SHAPES_VERSION,
         }
+        if self.protocol != "unseen":  # out of the key at the default: "unseen" keys are those from before protocols
+            out["protocol"] = self.protocol
+            out["base_seed"] = self.seed * 1_000_003 * len(SPLITS)  # the shape seed of train instance 0
         if name in self.user:
             item = self._user_files(name, split)[int(instance) % len(self._user_files(name, split))]
             out.update(source="user", path=str(item.path), sha256=item.sha256)
@@ -147,7 +175,7 @@ class ObjectLibrary:
             item = next(m for m in self.user[p["class"]] if str(m.path) == p["path"])
             mesh = item.mesh.copy()
         else:
-            mesh = make_shape(p["class"], p["seed"])
+            mesh = make_shape(p["class"], p.get("base_seed", p["seed"]))
         if self.deform > 0:
             mesh = normalize(deform_mesh(mesh, seed=p["seed"], strength=self.deform))
         self._cache[key] = mesh
