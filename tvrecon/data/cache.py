@@ -38,7 +38,9 @@ log = logging.getLogger(__name__)
 #: Bump whenever the code that turns a spec into a sample changes its output; part of every key.
 #: 4: ``PressConfig`` defaults to particle contact and a threshold in 128-grid cells (issue 15 item 1); both fields
 #: stay out of the key at their defaults, so without the bump every default touch would differ under its old key.
-CACHE_VERSION = "tvrecon-data-4"
+#: 5: the paper's touches (``touch_sweep.PaperSweepTouchPolicy``, the presets' new default) and a touch that felt
+#: nothing pressed again by the dataset; old entries are never read as new ones.
+CACHE_VERSION = "tvrecon-data-5"
 
 _KEY_FIELD = "__key__"
 _CHECKSUM_FIELD = "__checksum__"
