@@ -83,8 +83,8 @@ class MujocoPickPlaceConfig:
     frame_every: int = 10
     render: bool = True
     render_size: tuple[int, int] = (256, 192)
-    render_eye: tuple[float, float, float] = (1.0, 0.0, 0.76)
-    render_target: tuple[float, float, float] = (0.5, 0.0, 0.47)
+    render_eye: tuple[float, float, float] = (0.92, 0.0, 0.78)
+    render_target: tuple[float, float, float] = (0.5, 0.0, 0.5)
     out_dir: str = "outputs/robot_mujoco"
     write_gif: bool = True
     write_mp4: bool = True
@@ -145,7 +145,7 @@ class _Run:
         self.cfg = cfg
         c = cfg.camera
         W, H = cfg.render_size
-        cams = {"perception": (c.eye, c.target, c.fov), "render": (cfg.render_eye, cfg.render_target, 50.0)}
+        cams = {"perception": (c.eye, c.target, c.fov), "render": (cfg.render_eye, cfg.render_target, 48.0)}
         self.scene = MujocoScene(mesh, cfg.scene, cameras=cams)
         m, d = self.scene.model, self.scene.data
         sim = simulator if simulator is not None else LazySimulator(cfg.pad)  # one solver for both pads

@@ -2,7 +2,7 @@
 
 The gripper is written here in MJCF (no registry package ships a Panda MJCF under a license we could vendor): a hand
 on three slide joints and a yaw hinge driven by position actuators (gravity compensated), two fingers on slide joints
-coupled by an equality (they close symmetrically, like the real Panda's gear) and driven by one force actuator (the
+coupled by an equality (they close symmetrically, like the real Panda's gear), each driven by a force motor (the
 grip force in newtons). Each finger's inner box is its tactile pad geom (``left_pad`` / ``right_pad``).
 
 The object is a free body whose single mesh geom is the prepared object mesh (``prepare_object_mesh``: scaled to a
@@ -161,13 +161,14 @@ def gripper_xml(mesh: trimesh.Trimesh, cfg: MujocoSceneConfig, cameras: dict[str
             rgba="{_fmt(c.object_color)}" condim="4"/>
     </body>
   </worldbody>
-  <equality><joint joint1="right" joint2="left" polycoef="0 1 0 0 0"/></equality>
+  <equality><joint joint1="right" joint2="left" polycoef="0 1 0 0 0" solref="0.005 1"/></equality>
   <actuator>
     <position name="hx" joint="hx" kp="{c.hand_kp}" kv="{kv:.6g}"/>
     <position name="hy" joint="hy" kp="{c.hand_kp}" kv="{kv:.6g}"/>
     <position name="hz" joint="hz" kp="{c.hand_kp}" kv="{kv:.6g}"/>
     <position name="yaw" joint="yaw" kp="50" kv="2"/>
-    <motor name="grip" joint="left" ctrlrange="{-2 * c.max_grip_force} {2 * c.max_grip_force}"/>
+    <motor name="grip_left" joint="left" ctrlrange="{-c.max_grip_force} {c.max_grip_force}"/>
+    <motor name="grip_right" joint="right" ctrlrange="{-c.max_grip_force} {c.max_grip_force}"/>
   </actuator>
 </mujoco>
 """
@@ -212,13 +213,9 @@ class MujocoScene:
         return np.array(self.data.ctrl[:3]) - np.array([0.0, 0.0, PAD_BELOW_HAND])
 
     def grip(self, force: float) -> None:
-        """Drive each finger with ``force`` N (> 0 closes, < 0 opens).
-
-        The motor acts on the left finger's joint and the equality carries half of it to the right finger, so it
-        gets twice the per-finger force.
-        """
-        f = float(np.clip(force, -self.cfg.max_grip_force, self.cfg.max_grip_force))
-        self.data.ctrl[4] = 2.0 * f
+        """Drive each finger with ``force`` N (> 0 closes, < 0 opens): one motor per finger, the equality only
+        keeps them symmetric about the hand."""
+        self.data.ctrl[4:6] = float(np.clip(force, -self.cfg.max_grip_force, self.cfg.max_grip_force))
 
     def step(self, n: int = 1) -> None:
         """Advance the physics ``n`` steps."""
