@@ -78,8 +78,16 @@ def debug_requested(argv: Sequence[str] | None = None) -> bool:
     return DEBUG_FLAG in args or _env_true("HYDRA_FULL_ERROR")
 
 
+def _cause(err: BaseException) -> BaseException:
+    """The error inside Hydra's ``InstantiationException`` ("Error in call to target ..."), else ``err``."""
+    while type(err).__name__ == "InstantiationException" and err.__cause__ is not None:
+        err = err.__cause__
+    return err
+
+
 def exit_code(err: BaseException) -> int:
     """2 for bad input (see ``USAGE_ERRORS``, Hydra/OmegaConf config errors), 130 for Ctrl-C, 1 otherwise."""
+    err = _cause(err)
     if isinstance(err, KeyboardInterrupt):
         return EXIT_INTERRUPTED
     if isinstance(err, USAGE_ERRORS):
@@ -113,6 +121,7 @@ def one_line(text: str) -> str:
 
 
 def _message(err: BaseException) -> str:
+    err = _cause(err)  # `data.train.num_samples=2.5` names the field, not Hydra's call of the datamodule
     text = one_line(str(err))
     text = text.split("; Config search path:")[0]  # Hydra's search path after its list of options: noise here
     if isinstance(err, KeyError) and text.startswith(("'", '"')) and text.endswith(("'", '"')):

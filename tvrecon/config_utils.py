@@ -1,8 +1,9 @@
 """Config dataclasses from Hydra/OmegaConf mappings, with one error for unknown keys.
 
 `coerce_config` builds a dataclass from an instance, a mapping or ``None``; `check_known_keys` is the same unknown-key
-error for callers that split one mapping over several dataclasses. The module depends on no other part of
-``tvrecon``.
+error for callers that split one mapping over several dataclasses; `check_whole`, `check_number` and
+`check_instance` are the type checks of config fields and arguments, with errors that name them. The module depends
+on no other part of ``tvrecon``.
 """
 
 from __future__ import annotations
@@ -14,7 +15,16 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["OMIT_IF_DEFAULT", "check_known_keys", "coerce_config", "field_names", "omitted_from_key"]
+__all__ = [
+    "OMIT_IF_DEFAULT",
+    "check_instance",
+    "check_known_keys",
+    "check_number",
+    "check_whole",
+    "coerce_config",
+    "field_names",
+    "omitted_from_key",
+]
 
 C = TypeVar("C")
 
@@ -91,3 +101,49 @@ def coerce_config(cls: type[C], value: C | Mapping[str, Any] | None, what: str |
         elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(v, Mapping):
             kwargs[k] = coerce_config(hint, v, k)
     return cls(**kwargs)
+
+
+def check_whole(value: Any, name: str, minimum: int | None = None) -> int:
+    """``value`` as an int when it is a whole number (``40``, ``40.0``, a numpy integer), else an error naming ``name``.
+
+    Counts, worker numbers and grid sizes go through here so that ``n_grid=40.7`` or ``num_samples=2.5`` are refused
+    instead of silently truncated, and ``"40"`` or ``True`` are refused instead of taken as numbers.
+
+    Raises:
+        TypeError: ``value`` is not a number (a string, a bool, None, a sequence).
+        ValueError: ``value`` is a number but not whole, or below ``minimum``.
+    """
+    if isinstance(value, bool | np.bool_ | str | bytes) or value is None:
+        raise TypeError(f"{name} must be a whole number, got {value!r} ({type(value).__name__})")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a whole number, got {value!r} ({type(value).__name__})") from None
+    if not number.is_integer():
+        raise ValueError(f"{name} must be a whole number, got {value!r}")
+    if minimum is not None and number < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+    return int(number)
+
+
+def check_number(value: Any, name: str) -> None:
+    """Raise TypeError naming ``name`` unless ``value`` is a real number (an int, a float, a 0-dim array / tensor).
+
+    ``float("3")`` would accept the string ``"3"``: here a string, a bool or None is refused with the field's name.
+    """
+    if isinstance(value, bool | np.bool_ | str | bytes) or value is None:
+        raise TypeError(f"{name} must be a number, got {value!r} ({type(value).__name__})")
+    try:
+        float(value.detach() if hasattr(value, "detach") else value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r} ({type(value).__name__})") from None
+
+
+def check_instance(value: Any, cls: type, name: str) -> None:
+    """Raise TypeError naming ``name`` unless ``value`` is an instance of ``cls`` (the class itself is named)."""
+    if isinstance(value, cls):
+        return
+    if value is cls:
+        raise TypeError(f"{name} must be a {cls.__name__} instance, got the class itself: pass {cls.__name__}()")
+    hint = f": build one from the mapping with {cls.__name__}(**mapping)" if isinstance(value, Mapping) else ""
+    raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}{hint}")

@@ -20,6 +20,7 @@ import torch
 from lightning import LightningDataModule
 from torch.utils.data import DataLoader, Dataset
 
+from tvrecon.config_utils import check_whole
 from tvrecon.data.datasets import (
     EvalDraws,
     GeneratedDataset,
@@ -71,10 +72,12 @@ class _GeneratedDataModule(LightningDataModule):
         **dataset_kwargs: Any,
     ) -> None:
         super().__init__()
-        if int(batch_size) < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        if int(num_workers) < 0:
-            raise ValueError(f"num_workers must be >= 0, got {num_workers}")
+        check_whole(batch_size, "data.batch_size", minimum=1)  # 2.5 was silently 2
+        check_whole(num_workers, "data.num_workers", minimum=0)
+        if eval_batch_size is not None:
+            check_whole(eval_batch_size, "data.eval_batch_size", minimum=1)
+        if pregenerate_workers is not None:
+            check_whole(pregenerate_workers, "data.pregenerate_workers", minimum=1)
         self.splits: dict[str, dict[str, Any] | None] = {
             "train": dict(_plain(train)),
             "val": dict(_plain(val)) if val else None,
@@ -83,6 +86,8 @@ class _GeneratedDataModule(LightningDataModule):
         for name, split in self.splits.items():
             if split is not None and self.size_key not in split:
                 raise ValueError(f"data split {name!r} needs {self.size_key!r} (its size), got keys {sorted(split)}")
+            if split is not None:
+                check_whole(split[self.size_key], f"data.{name}.{self.size_key}", minimum=1)
         self.batch_size = int(batch_size)
         self.eval_batch_size = int(eval_batch_size) if eval_batch_size else self.batch_size
         self.num_workers = int(num_workers)

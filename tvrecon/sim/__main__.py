@@ -222,7 +222,20 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
     )
     for name, path in files.items():
         print(f"wrote {name}: {path}")
+    if reading.criterion_missed:
+        asked = "--depth" if args.depth is not None else "--force" if args.force is not None else "the threshold"
+        msg = (
+            f"the press stopped at its travel limit before {asked} was reached (depth {reading.depth:.2f} cells, "
+            f"normal force {float(reading.force_field[..., 2].sum()) if reading.force_field is not None else 0:.4g})"
+        )
+        if args.strict:
+            raise StopNotReached(f"{msg}; the files above are written (--strict makes this an error)")
+        print(f"warning: {msg}; add --strict to make this an error", file=sys.stderr, flush=True)
     return files
+
+
+class StopNotReached(RuntimeError):
+    """``--strict``: the press ended at its travel limit, not at the asked ``--depth`` / ``--force`` / threshold."""
 
 
 def cli_sensor(args: argparse.Namespace) -> tuple[SensorConfig, dict]:
@@ -351,6 +364,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--marker-radius", type=float, default=1.0, help="marker dot radius (taxels)")
     p.add_argument("--height-gain", type=float, default=3.0, help="height exaggeration of the RGB image")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 1 when the press ends at its travel limit before --depth / --force / the threshold is reached",
+    )
     p.add_argument("--debug", action="store_true", help="on an error, show the full traceback (not one line)")
     return parser
 

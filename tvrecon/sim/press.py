@@ -34,7 +34,14 @@ import torch
 import trimesh
 from torch import Tensor
 
-from tvrecon.config_utils import OMIT_IF_DEFAULT, check_known_keys, field_names
+from tvrecon.config_utils import (
+    OMIT_IF_DEFAULT,
+    check_instance,
+    check_known_keys,
+    check_number,
+    check_whole,
+    field_names,
+)
 from tvrecon.sim import placement
 from tvrecon.sim.materials import p_wave_speed
 from tvrecon.sim.mpm import MPMConfig, cfl_dt
@@ -140,7 +147,16 @@ class PressConfig:
         self.validate()
 
     def validate(self) -> None:
-        """Raise ValueError naming the bad field."""
+        """Raise ValueError (TypeError for a value of the wrong type) naming the bad field."""
+        check_whole(self.n_grid, "PressConfig.n_grid")
+        for name in ("max_steps", "release_steps", "record_every"):
+            if getattr(self, name) is not None:
+                check_whole(getattr(self, name), f"PressConfig.{name}")
+        for name in ("domain_size", "gap", "speed_fraction", "max_depth", "friction"):
+            check_number(getattr(self, name), f"PressConfig.{name}")
+        for name in ("speed", "threshold", "depth", "force", "dt"):
+            if getattr(self, name) is not None:
+                check_number(getattr(self, name), f"PressConfig.{name}")
         if int(self.n_grid) < 16:
             raise ValueError(f"PressConfig.n_grid must be >= 16, got {self.n_grid}")
         if not (math.isfinite(float(self.domain_size)) and float(self.domain_size) > 0):
@@ -191,6 +207,8 @@ class EIPSimulator:
     ) -> None:
         self.sensor = sensor if sensor is not None else SensorConfig()
         self.cfg = press if press is not None else PressConfig()
+        check_instance(self.sensor, SensorConfig, "EIPSimulator sensor")
+        check_instance(self.cfg, PressConfig, "EIPSimulator press")
         self.device = torch.device(device)
         self.compile = compile
 

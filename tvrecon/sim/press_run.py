@@ -28,7 +28,7 @@ from tvrecon.sim.forces import column_force_field
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
 from tvrecon.sim.placement import Placement, touch_z
 from tvrecon.sim.sensor import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice
-from tvrecon.sim.stop_rules import StopCheck, should_stop, stop_rules, terminal_chamfer
+from tvrecon.sim.stop_rules import StopCheck, criterion_missed, should_stop, stop_rules, terminal_chamfer
 
 if TYPE_CHECKING:
     from tvrecon.sim.press import PressConfig
@@ -58,6 +58,8 @@ class TactileReading:
         frames: (K, 3, H, W) recorded images (``record_every``), or None.
         frame_steps: the K step indices of ``frames``.
         particles: (K, P, 3) recorded pad particle positions in world coordinates, or None.
+        criterion_missed: the press stopped at its travel limit (``max_depth`` / ``max_steps``) before its stop
+            criterion (``depth``, ``force`` or ``threshold``) was reached; a ``RuntimeWarning`` says so too.
     """
 
     image: Tensor
@@ -75,6 +77,7 @@ class TactileReading:
     frame_steps: list[int] = field(default_factory=list)
     particles: Tensor | None = None
     force_field: Tensor | None = None
+    criterion_missed: bool = False
 
 
 class Phase(enum.Enum):
@@ -254,6 +257,9 @@ class PressLoop:
                             column_force_field(particle_force[b], (H, W), int(s.layers)).float().cpu()
                         )
                         _warn_if_passed_through(tc, p)
+                        if tc.contact and criterion_missed(self.rules, tc, check):
+                            tc.reading.criterion_missed = True
+                            _warn_criterion_missed(p)
                         if p.record_every and tc.steps % int(p.record_every) != 0:
                             self._record(tc, xb[b])
                         tc.stop_pressing()
@@ -353,6 +359,25 @@ def _warn_if_passed_through(tc: TouchRun, p: PressConfig) -> None:
             RuntimeWarning,
             stacklevel=5,
         )
+
+
+def _warn_criterion_missed(p: PressConfig) -> None:
+    """One warning per configuration (the text names no touch, so Python shows it once, not once per touch)."""
+    asked = (
+        f"depth {p.depth:g} cells"
+        if p.depth is not None
+        else f"force {_scalar(p.force):g}"
+        if p.force is not None
+        else f"threshold {_scalar(p.threshold):g}"
+    )
+    steps = f", max_steps {p.max_steps}" if p.max_steps is not None else ""
+    warnings.warn(
+        f"a press stopped at its travel limit (max_depth {float(p.max_depth):g} cells past the gap{steps}) before "
+        f"its stop criterion ({asked}) was reached: its reading has criterion_missed=True. Ask for less, or raise "
+        f"max_depth / max_steps",
+        RuntimeWarning,
+        stacklevel=5,
+    )
 
 
 def _select_blocks(state: ParticleState, keep: list[int], P: int) -> ParticleState:

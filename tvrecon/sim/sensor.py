@@ -64,11 +64,17 @@ class SensorConfig:
     mount_mass: float | None = None
 
     def __post_init__(self) -> None:
-        self.resolution = tuple(int(r) for r in self.resolution)  # type: ignore[assignment]
+        res = self.resolution
+        if isinstance(res, str | bytes) or not hasattr(res, "__len__") or len(res) != 2:
+            raise TypeError(f"SensorConfig.resolution must be (H, W), e.g. (64, 64), got {res!r}")
+        self.resolution = tuple(config_utils.check_whole(r, "SensorConfig.resolution") for r in res)  # type: ignore[assignment]
         self.validate()
 
     def validate(self) -> None:
-        """Raise ValueError naming the bad field and the expected value."""
+        """Raise ValueError (TypeError for a value that is not a number) naming the bad field and the expected value."""
+        config_utils.check_whole(self.layers, "SensorConfig.layers")
+        for name in ("spacing", "E", "nu", "rho", "damping"):
+            config_utils.check_number(getattr(self, name), f"SensorConfig.{name}")
         if len(self.resolution) != 2 or min(self.resolution) < 2:
             raise ValueError(f"SensorConfig.resolution must be (H, W) with H, W >= 2, got {self.resolution}")
         if int(self.layers) < 2:

@@ -307,6 +307,14 @@ def stop_rules(p: PressConfig, max_steps: int) -> list[StopRule]:
     return rules
 
 
+def criterion_missed(rules: list[StopRule], state: PressState, check: StopCheck) -> bool:
+    """After a stop: True when the press stopped on its travel limit while its own criterion (the depth, force or
+    threshold rule of ``rules``) was configured and is not reached (e.g. ``depth`` deeper than the pad can travel,
+    a ``force`` the material never builds up, a threshold the resolution cannot resolve)."""
+    criteria = [r for r in rules if not isinstance(r, TravelLimit)]
+    return bool(criteria) and not any(rule.reached(state, check) for rule in criteria)
+
+
 def should_stop(rules: list[StopRule], state: PressState, check: StopCheck) -> bool:
     """Whether any rule, asked in order, says stop."""
     return any(rule.reached(state, check) for rule in rules)
