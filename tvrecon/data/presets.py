@@ -120,6 +120,22 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("PROJECT_ROOT") or PROJECT_ROOT).resolve() / "data" / "cache"
 
 
+def _unknown_key(message: str, cfg: DictConfig) -> str | None:
+    """For Hydra's "Could not override 'a.b'": a message naming the key and the keys its parent has, else None."""
+    import re
+
+    found = re.search(r"Could not override '([^']+)'", message)
+    if found is None:
+        return None
+    key = found.group(1)
+    parent, _, leaf = key.rpartition(".")
+    node = OmegaConf.select(cfg, parent) if parent else cfg
+    if not isinstance(node, DictConfig):
+        return None
+    where = f"'{parent}'" if parent else "the preset"
+    return f"unknown data key {key!r}: check its spelling ({where} has {sorted(str(k) for k in node.keys())})"
+
+
 def compose_preset(name: str, overrides: Sequence[str] = ()) -> DictConfig:
     """Compose ``configs/data/<name>.yaml`` with Hydra command-line style ``overrides`` (``key=value``).
 
@@ -131,8 +147,18 @@ def compose_preset(name: str, overrides: Sequence[str] = ()) -> DictConfig:
 
     if not (CONFIG_DIR / f"{name}.yaml").is_file():
         raise ValueError(f"unknown data preset {name!r}; available: {preset_names()} (in {CONFIG_DIR})")
+    from hydra.errors import ConfigCompositionException
+
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose(config_name=name, overrides=list(overrides))
+        try:
+            cfg = compose(config_name=name, overrides=list(overrides))
+        except ConfigCompositionException as err:
+            # Hydra suggests `+key=value` for a mistyped key, and following that hint ends in a TypeError of the
+            # dataset: name the key and list the ones that exist instead
+            unknown = _unknown_key(str(err), compose(config_name=name))
+            if unknown is None:
+                raise
+            raise ValueError(unknown) from err
     raw = OmegaConf.to_container(cfg, resolve=False).get("cache_dir")  # type: ignore[union-attr]
     if isinstance(raw, str) and "PROJECT_ROOT" in raw:  # the preset's default, not the user's cache_dir=...
         cfg.cache_dir = str(default_cache_dir())

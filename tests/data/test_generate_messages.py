@@ -1,0 +1,19 @@
+"""Issue 28 item 4: a mistyped key in ``generate`` names the key and lists the real ones (before: Hydra suggested
+``+train.num_sample=4``, and following that hint ended in a TypeError of the dataset)."""
+
+from __future__ import annotations
+
+import pytest
+
+from tvrecon.cli_errors import call_cli
+from tvrecon.data.generate import main
+from tvrecon.data.presets import compose_preset
+
+
+def test_mistyped_key_lists_the_keys_of_its_parent(tmp_path, capsys) -> None:
+    with pytest.raises(ValueError, match=r"unknown data key 'train.num_sample'.*'train' has .*'num_samples'"):
+        compose_preset("tiny", ["train.num_sample=4"])
+    prog = "python -m tvrecon.data.generate"
+    assert call_cli(main, ["preset=tiny", "batch_sise=2", f"cache_dir={tmp_path}"], prog=prog) == 2
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "unknown data key 'batch_sise'" in lines[0] and "'batch_size'" in lines[0]
