@@ -21,6 +21,7 @@ from lightning import LightningDataModule
 from torch.utils.data import DataLoader, Dataset
 
 from tvrecon.config_utils import check_whole
+from tvrecon.data.cache_housekeeping import announce_uncached, remove_stale_tmp
 from tvrecon.data.datasets import (
     EvalDraws,
     GeneratedDataset,
@@ -137,9 +138,12 @@ class _GeneratedDataModule(LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         wanted = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",), "predict": ("test",)}
         names = wanted.get(stage, _SPLITS) if stage else _SPLITS
+        if not self.datasets:  # the job's first setup: the leftovers of killed runs go first
+            remove_stale_tmp(self.cache_dir)
         for name in names:
             if self.splits.get(name) is not None and name not in self.datasets:
                 self.datasets[name] = self.make_dataset(name)
+                announce_uncached(name, self.datasets[name])  # the first epoch on an empty cache says so
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
         if name not in self.datasets:

@@ -42,7 +42,9 @@ from tqdm.auto import tqdm
 
 from tvrecon.cli_errors import RESUME_HINT
 from tvrecon.data.cache import cache_key
+from tvrecon.data.cache_housekeeping import remove_stale_tmp
 from tvrecon.data.datasets import GeneratedDataset
+from tvrecon.data.touch_report import contact_report
 
 __all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "parse_shard", "main"]
 
@@ -199,6 +201,7 @@ def pregenerate(
     elif isinstance(workers, bool) or int(workers) != workers or workers < 1:  # 0 once meant "all cores" silently
         raise ValueError(f"workers must be a whole number >= 1 (leave it out for one per core), got {workers!r}")
     workers = int(workers)
+    remove_stale_tmp(dataset.cache.root)  # temporary files of killed runs, older than this job
     indices = shard_indices(len(dataset), shard, rank_world)
     stats = GenerateStats(items=len(indices))
     todo = [i for i in indices if dataset.cache.load(cache_key(dataset.spec(i))) is None]
@@ -318,6 +321,7 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
             f"= {st.bytes_per_1000 / 2**20:.1f} MiB per 1000 samples ({Path(str(ds.cache.root)).resolve()})",
             flush=True,
         )
+        print(f"[{name}] {contact_report(ds).line()}", flush=True)  # blank touches per class (thin parts)
     return results
 
 
