@@ -35,12 +35,12 @@ PAD = PadConfig(resolution=(8, 8), layers=3, pad_size=0.01, n_grid=32, stiffness
 
 @pytest.fixture()
 def scene():
+    """Pads that press by MuJoCo's penetration (``use_penetration``; the stiff PAD's give is ~0): a known depth."""
     model = mujoco.MjModel.from_xml_string(XML)
     data = mujoco.MjData(model)
-    top = TactileSensor(model, data, geom="top", pad=PAD, normal_axis=(0, 0, -1), up_axis=(1, 0, 0))
-    bottom = TactileSensor(
-        model, data, geom="bottom", pad=PAD, normal_axis=(0, 0, 1), up_axis=(1, 0, 0), simulator=top.sim
-    )
+    kw = {"pad": PAD, "up_axis": (1, 0, 0), "use_penetration": True}
+    top = TactileSensor(model, data, geom="top", normal_axis=(0, 0, -1), **kw)
+    bottom = TactileSensor(model, data, geom="bottom", normal_axis=(0, 0, 1), simulator=top.sim, **kw)
     return model, data, top, bottom
 
 
@@ -71,6 +71,20 @@ def test_a_known_press_gives_contact_and_the_normal_displacement(scene) -> None:
     again = top.sense()
     assert not again.simulated and np.array_equal(again.image, r.image)  # cached: nothing changed
     assert top.num_presses == 1
+
+
+def test_by_default_the_depth_is_the_pads_give_under_mujocos_force(scene) -> None:
+    model, data, top, _ = scene
+    press_by(model, data, 0.001, 0.001)  # the box squeezed 1 mm between the pads
+    force = sum(p.force for p in top.contact_points())
+    assert force > 0
+    pad = PadConfig(resolution=(8, 8), layers=3, pad_size=0.01, n_grid=32, stiffness=force / 4e-4)  # give: 0.4 mm
+    s = TactileSensor(model, data, geom="top", pad=pad, normal_axis=(0, 0, -1), up_axis=(1, 0, 0))
+    r = s.sense()
+    assert r.contact and r.force == pytest.approx(force)
+    assert r.penetration == pytest.approx(0.001, abs=1e-6) and r.depth == pytest.approx(4e-4, abs=1e-9)
+    cells = r.depth / pad.dx
+    assert 0.7 * cells < r.image[2].mean() < 1.1 * cells
 
 
 def test_no_contact_is_the_rest_reading_without_simulation(scene) -> None:

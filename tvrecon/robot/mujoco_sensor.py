@@ -108,6 +108,14 @@ class TactileSensor(PadSensor):
         simulator: share one (e.g. ``other_sensor.sim``) so the pads' presses run in one batched solver call.
         n_grid: grid cells of the press domain when ``pad`` is a preset name.
         name: label used in logs.
+        use_penetration: also take MuJoCo's penetration as a lower bound of the press depth. Off by default: MuJoCo's
+            soft contacts overlap by what ``solref`` / ``solimp`` allow (1.1-1.3 mm under a 20 N squeeze with the
+            gripper's ``solref="0.01 1"``, ``benchmarks/bench_mujoco_agreement.py``), a constraint setting rather
+            than the gel's give, so the depth is the pad's elastic give under MuJoCo's contact force
+            (``force / pad.stiffness``), as with pybullet's nearly rigid contacts.
+
+    Meshes given to :meth:`attach_object` are in the *geom's* frame: MuJoCo recentres a mesh asset on its centre of
+    mass and turns it to its principal axes (``geom_mesh`` returns it so).
     """
 
     def __init__(
@@ -124,6 +132,7 @@ class TactileSensor(PadSensor):
         simulator: object | None = None,
         n_grid: int = 64,
         name: str | None = None,
+        use_penetration: bool = False,
     ) -> None:
         if not isinstance(model, mujoco.MjModel) or not isinstance(data, mujoco.MjData):
             raise ValueError("TactileSensor needs a mujoco.MjModel and its mujoco.MjData")
@@ -141,7 +150,8 @@ class TactileSensor(PadSensor):
             if len(self.pad_geoms) == 0:
                 raise ValueError(f"body {body!r} has no geoms: the pad needs a geom to collide with")
         label = name or (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, self.geom) if self.geom >= 0 else None)
-        super().__init__(normal_axis, up_axis, pad_center, PadConfig.coerce(pad, n_grid), simulator, label or "pad")
+        pad_cfg = PadConfig.coerce(pad, n_grid)
+        super().__init__(normal_axis, up_axis, pad_center, pad_cfg, simulator, label or "pad", use_penetration)
         self.feel = None if objects is None else {_id(model, mujoco.mjtObj.mjOBJ_GEOM, g, "geom") for g in objects}
         self._force = np.zeros(6)
 

@@ -304,6 +304,8 @@ class PadSensor:
         pad: pad geometry and caching thresholds.
         simulator: a ``tvrecon.sim.press.EIPSimulator`` or :class:`LazySimulator`; None builds one from ``pad``.
         name: label used in logs.
+        use_penetration: the press depth is max(engine penetration, force / stiffness) when True, force / stiffness
+            alone when False (for engines whose penetration is a soft-constraint setting, not a geometric overlap).
     """
 
     def __init__(
@@ -314,6 +316,7 @@ class PadSensor:
         pad: PadConfig | None = None,
         simulator: object | None = None,
         name: str = "finger",
+        use_penetration: bool = True,
     ) -> None:
         n = np.asarray(normal_axis, dtype=np.float64)
         u = np.asarray(up_axis, dtype=np.float64)
@@ -326,6 +329,7 @@ class PadSensor:
         if np.linalg.norm(u) < 1e-6:
             raise ValueError("up_axis must not be parallel to normal_axis")
         self.name = name
+        self.use_penetration = bool(use_penetration)
         self.pad_center = None if pad_center is None else np.asarray(pad_center, dtype=np.float64)
         if self.pad_center is not None and self.pad_center.shape != (3,):
             raise ValueError(f"pad_center must be (3,) in the link frame, got {self.pad_center.shape}")
@@ -424,9 +428,11 @@ class PadSensor:
             position = centre + d_world * float((position - centre) @ d_world)
         force_vec = (w[:, None] * normals).sum(0)  # the object pushes the finger along the normals
         penetration = float(max(0.0, max(c.penetration for c in pts)))
-        # the pad's indentation: its elastic give under the measured force, at least the geometric overlap,
-        # rounded to 0.05 mm so that presses of equal depth can share one batched solver call
-        depth = float(np.clip(max(penetration, force / self.pad.stiffness), self.pad.min_depth, self.pad.max_depth))
+        # the pad's indentation: its elastic give under the measured force, at least the geometric overlap (when
+        # the engine's penetration is one), rounded to 0.05 mm so that presses of equal depth share one solver call
+        give = force / self.pad.stiffness
+        depth = max(penetration, give) if self.use_penetration else give
+        depth = float(np.clip(depth, self.pad.min_depth, self.pad.max_depth))
         depth = round(depth / 5e-5) * 5e-5
         T = self.object_transform(key)
         local = (np.linalg.inv(T) @ np.append(position, 1.0))[:3]
