@@ -17,7 +17,7 @@ FAST = [
     "press.max_depth=1.5",
     "press.gap=0.5",
     "press.speed_fraction=0.2",
-    "touch.strengths=[{threshold:0.05}]",
+    "touch.depth_fractions=[0.1]",
     "tactile_size=12",
 ]
 RECON_FAST = FAST + ["train.num_samples=2", "val.num_samples=1", "test.num_samples=2", "max_touches=4"]
@@ -54,13 +54,15 @@ def test_paper_presets_match_table1():
 
 def test_cls_paper_cpu_has_table1_sizes_and_many_objects_per_class():
     """The CPU classification preset (issue 12): Table 1's image counts, a validation split, 15-16 train and 4-5
-    test objects of every class (none shared between splits), tactile maps at the pad's resolution."""
+    test objects of every class (none shared between splits), tactile maps at the pad's resolution, the paper's
+    touches."""
     cfg = compose_preset("cls_paper_cpu", ["cache_dir=null"])
     sizes = split_sizes(cfg)
     assert sizes["train"] == TABLE1["classification"]["train"] == SplitSize(35, 5500, 0)
     assert sizes["test"] == TABLE1["classification"]["test"] == SplitSize(35, 1500, 0)
     assert sizes["val"] == SplitSize(35, 700, 0)
-    assert [cfg.tactile_size] * 2 == list(cfg.sensor.resolution) == [32, 32]  # no upsampling of the pad
+    assert [cfg.tactile_size] * 2 == list(cfg.sensor.resolution) == [31, 31]  # no upsampling of the pad
+    assert cfg.touch._target_.endswith("PaperSweepTouchPolicy")  # the paper's touches
     dm = instantiate(cfg, _convert_="all")
     per_class = {}
     for split, (lo, hi) in {"train": (15, 16), "val": (2, 2), "test": (4, 5)}.items():

@@ -19,7 +19,7 @@ ARGS = [
     "press.max_depth=1.5",
     "press.gap=0.5",
     "press.speed_fraction=0.2",
-    "touch.strengths=[{threshold:0.05}]",
+    "touch.depth_fractions=[0.1]",
 ]
 
 

@@ -26,7 +26,7 @@ ARGS = [
     "sensor.layers=3",
     "press.n_grid=32",
     "press.max_depth=1.5",
-    "touch.strengths=[{threshold:0.05}]",
+    "touch.depth_fractions=[0.1]",
 ]
 
 
@@ -78,3 +78,30 @@ def _zombie(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().split(") ")[1].startswith("Z")
     except OSError:
         return True
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc to find the worker processes")
+def test_ctrl_c_with_workers_exits_130_with_the_resume_hint_in_one_line(tmp_path: Path) -> None:
+    """Ctrl-C reaches the whole process group (as from a terminal): one line, exit 130, no worker tracebacks."""
+    cmd = [sys.executable, "-m", "tvrecon.data.generate", *ARGS, f"cache_dir={tmp_path}", "workers=2", "splits=train"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        workers: list[int] = []
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            workers = _workers(proc.pid)
+        assert len(workers) == 2, f"no pool workers seen (exit {proc.poll()})"
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == f"python -m tvrecon.data.generate: {RESUME_HINT}"
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err

@@ -7,6 +7,8 @@ presets were split into config groups (issue 16 item 6), so the composed presets
 The one intended difference is ``touch._target_``, added when touch policies became pluggable (issue 16 item 5): it
 names the default policy, whose cache key it does not enter. Presets added later (``cls_paper_cpu``, issue 12) were
 written into the fixture the same way, without ``touch._target_``, and their other presets' entries left untouched.
+The fixture was rewritten on purpose when the presets moved to the paper's touches (issue 24: ``touch/paper_sweep``,
+the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon-data-5``).
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update
@@ -37,7 +39,7 @@ CONFIGS = ROOT / "configs"
 FIXTURES = Path(__file__).parent / "fixtures"
 PRESETS_FIXTURE = FIXTURES / "data_presets.json"
 KEYS_FIXTURE = FIXTURES / "data_cache_keys.json"
-PRESETS = ["cls_paper", "cls_paper_cpu", "cls_small", "cls_tiny", "paper", "small", "tiny"]
+PRESETS = ["cls_paper", "cls_paper_cpu", "cls_small", "cls_sweep_cpu", "cls_tiny", "paper", "small", "tiny"]
 EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
 
 
@@ -101,8 +103,9 @@ def test_preset_list_is_pinned():
     assert preset_names() == PRESETS
 
 
-#: Keys added to every preset on purpose since the fixture was written, with their value.
-ADDED = {("touch", "_target_"): "tvrecon.data.touches.ConeTouchPolicy"}
+#: Keys added to every preset on purpose since the fixture was written, with their value (none since the fixture was
+#: rewritten for the paper's touches, issue 24).
+ADDED: dict[tuple[str, str], Any] = {}
 
 
 def test_presets_resolve_to_pinned_values(project_root):
@@ -125,10 +128,10 @@ def test_cache_keys_are_pinned(project_root, convert: str):
 def test_default_policy_key_ignores_how_it_is_written(project_root):
     """``touch.cone_deg=15`` (an int), the default policy with or without ``_target_``, or no touch block at all:
     one policy, one key."""
-    expected = json.loads(KEYS_FIXTURE.read_text())["tiny"]["train"]
+    expected = json.loads(KEYS_FIXTURE.read_text())["cls_small"]["train"]  # the presets still on the default policy
     for overrides in (["touch.cone_deg=15"], ["~touch._target_"], ["~touch"]):
         GlobalHydra.instance().clear()
-        dm = instantiate(compose_preset("tiny", ["cache_dir=null", *overrides]))
+        dm = instantiate(compose_preset("cls_small", ["cache_dir=null", *overrides]))
         assert cache_key(dm.make_dataset("train").spec(0)) == expected, overrides
 
 
