@@ -128,3 +128,29 @@ def test_a_touch_that_loses_a_thin_part_is_pressed_again() -> None:
     assert (out["contact"] | ~first).all()  # a touch that felt the fork keeps its reading
     assert (out["tactile"][rescued, 2].reshape(int(rescued.sum()), -1).max(1) > 0.02).all()  # blank: < 1e-4
     assert np.allclose(out["tactile"][~out["contact"]], 0.0, atol=0.01)  # what still misses reads blank
+
+
+def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
+    """A touch of the shared_base pear (instance 3, its seventh touch: the stem, about a cell thick, from 60 degrees)
+    diverges at the CPU presets' CFL step; the dataset presses it alone with half the step and reads it."""
+    from tvrecon.data.shapes import ObjectLibrary
+
+    ds = TactileClassificationDataset(
+        num_objects=129,
+        touches_per_object=10,
+        touch=_block("touch", "paper_sweep"),
+        library=ObjectLibrary(protocol="shared_base"),
+        cache_dir=None,
+        sensor=_block("sensor", "eip_cpu"),
+        press=_block("press", "eip_cpu"),
+    )
+    assert ds.object_of(128) == ("pear", 3)
+    mesh = ds.mesh(128)
+    t = sample_touches(mesh, 10, seed=ds.seeds(128)[0], policy=ds.touch, sim=ds.simulator)
+    one = t._replace(
+        positions=t.positions[6:7], directions=t.directions[6:7], normals=t.normals[6:7], strengths=t.strengths[6:7]
+    )
+    with pytest.raises(FloatingPointError, match="diverged"):
+        ds.simulator.press_batch(mesh, one.positions, one.directions, **one.strengths[0])
+    (reading,) = ds._simulate_stable(mesh, one)
+    assert torch.isfinite(reading.image).all() and reading.steps > 0
