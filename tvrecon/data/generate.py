@@ -112,6 +112,9 @@ _DATASET: GeneratedDataset | None = None
 
 def _init_worker(dataset: GeneratedDataset) -> None:
     global _DATASET
+    # Ctrl-C reaches the whole process group: the main process alone answers it (one line, exit 130) and stops the
+    # workers, instead of each worker printing its own KeyboardInterrupt traceback (ignored from their start too)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)
     _DATASET = dataset
 
@@ -137,7 +140,15 @@ def _pool_generate(dataset: GeneratedDataset, todo: list[int], workers: int, des
     procs: list[mp.process.BaseProcess] = []
     clean = False
     try:
-        futures = [pool.submit(_work, i) for i in todo]
+        # the workers start with SIGINT ignored (inherited through exec), so a Ctrl-C while they import is not a
+        # traceback per worker: the main process alone answers it
+        in_main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
+        try:
+            futures = [pool.submit(_work, i) for i in todo]
+        finally:
+            if in_main:
+                signal.signal(signal.SIGINT, previous)
         procs = list(pool._processes.values())  # all spawned by now; kept to name the signal of a dead one
         for fut in as_completed(futures):
             yield fut.result()[0]
