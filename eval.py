@@ -28,7 +28,13 @@ from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
 from tvrecon.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
 from tvrecon.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
-from tvrecon.run import exit_on_sigterm, fix_test_touches, report_tables, save_results  # noqa: E402
+from tvrecon.run import (  # noqa: E402
+    check_model_matches_data,
+    exit_on_sigterm,
+    fix_test_touches,
+    report_tables,
+    save_results,
+)
 
 log = logging.getLogger("eval")
 
@@ -84,27 +90,6 @@ def find_checkpoints(ckpt_path: str | None, run_dir: str | None, prefer: str = "
     return found
 
 
-def check_model_matches_data(model_target: str, data_target: str, ckpt: Path | str) -> None:
-    """Refuse a classifier on reconstruction data and a reconstructor on classification data.
-
-    Raises:
-        ValueError: naming the checkpoint, what it holds and the ``data=`` presets that fit it.
-    """
-    models = {"ClassificationModule": "cls", "ReconstructionModule": "recon"}
-    datas = {"ClassificationDataModule": "cls", "ReconstructionDataModule": "recon"}
-    model = next((v for k, v in models.items() if model_target.endswith(k)), None)
-    data = next((v for k, v in datas.items() if data_target.endswith(k)), None)
-    if model is None or data is None or model == data:
-        return
-    what = {"cls": "a classifier", "recon": "a reconstruction model"}[model]
-    data_kind = {"cls": "classification data", "recon": "reconstruction data"}[data]
-    fits = "cls_tiny, cls_small, cls_paper" if model == "cls" else "tiny, small, paper"
-    raise ValueError(
-        f"ckpt_path={ckpt} holds {what} ({model_target}) but data= gives {data_kind} ({data_target}): "
-        f"give data= a preset that fits the checkpoint ({fits}), or leave data= out to use the run's own data"
-    )
-
-
 def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     """Test one checkpoint; returns its result dict (also written to ``<out_dir>/metrics.json``)."""
     cfg_path = run_config_path(ckpt)
@@ -128,7 +113,7 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
             run_cfg.model.export = bool(cfg.export)
             run_cfg.model.touch_controls = bool(cfg.get("touch_controls", False))
             run_cfg.model.refine = bool(cfg.get("refine", False))
-    check_model_matches_data(str(run_cfg.model._target_), str(run_cfg.data.get("_target_", "")), ckpt)
+    check_model_matches_data(str(run_cfg.model._target_), str(run_cfg.data.get("_target_", "")), f"ckpt_path={ckpt}")
     fix_test_touches(run_cfg.data)
     L.seed_everything(int(cfg.seed), workers=True)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(run_cfg.data)

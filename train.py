@@ -31,6 +31,7 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from tvrecon.checkpoint import check_checkpoint  # noqa: E402
 from tvrecon.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
 from tvrecon.run import (  # noqa: E402  (also importable from train)
+    check_model_matches_data,
     exit_on_sigterm,
     fix_test_touches,
     last_checkpoint,
@@ -151,6 +152,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     out_dir = Path(cfg.paths.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
+    experiment = f"experiment={cfg.get('experiment_name')}"
+    check_model_matches_data(str(cfg.model._target_), str(cfg.data.get("_target_", "")), experiment)
     fix_test_touches(cfg.data)
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)

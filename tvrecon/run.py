@@ -21,7 +21,14 @@ from tvrecon.atomic import atomic_write_text
 from tvrecon.cls_report import write_classification_plots
 from tvrecon.tables import build_tables, format_tables, write_tables
 
-__all__ = ["exit_on_sigterm", "fix_test_touches", "last_checkpoint", "report_tables", "save_results"]
+__all__ = [
+    "check_model_matches_data",
+    "exit_on_sigterm",
+    "fix_test_touches",
+    "last_checkpoint",
+    "report_tables",
+    "save_results",
+]
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +101,33 @@ def _exit_stopped(trainer: L.Trainer, stage: str, hint: str | None, how: str, si
     log.error(msg)
     print(msg, file=sys.stderr, flush=True)
     sys.exit(128 + signum)
+
+
+def check_model_matches_data(model_target: str, data_target: str, source: str) -> None:
+    """Refuse a classifier on reconstruction data and a reconstructor on classification data.
+
+    Before, ``eval.py ckpt_path=<classifier> data=tiny`` exited 0 and ``train.py experiment=classify data=tiny`` ended
+    in an unrelated ``rotate_touches`` TypeError.
+
+    Args:
+        model_target, data_target: the ``_target_`` of the model and data configs.
+        source: what holds the model, for the message (``ckpt_path=...``, ``experiment=classify``).
+    Raises:
+        ValueError: naming the source, what it holds and the ``data=`` presets that fit it.
+    """
+    models = {"ClassificationModule": "cls", "ReconstructionModule": "recon"}
+    datas = {"ClassificationDataModule": "cls", "ReconstructionDataModule": "recon"}
+    model = next((v for k, v in models.items() if model_target.endswith(k)), None)
+    data = next((v for k, v in datas.items() if data_target.endswith(k)), None)
+    if model is None or data is None or model == data:
+        return
+    what = {"cls": "a classifier", "recon": "a reconstruction model"}[model]
+    data_kind = {"cls": "classification data", "recon": "reconstruction data"}[data]
+    fits = "cls_tiny, cls_small, cls_paper" if model == "cls" else "tiny, small, paper"
+    raise ValueError(
+        f"{source} holds {what} ({model_target}) but data= gives {data_kind} ({data_target}): give data= a preset "
+        f"that fits it ({fits})"
+    )
 
 
 def fix_test_touches(data_cfg: DictConfig) -> None:

@@ -57,3 +57,17 @@ def test_bare_missing_mesh_file_name_says_missing(tmp_path: Path, monkeypatch: p
 def test_unknown_class_name_still_lists_the_classes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
     line = _run_cli("mugg", tmp_path, monkeypatch, capsys)
     assert "unknown shape class 'mugg'" in line and "mug" in line
+
+
+def test_ctrl_c_exits_130_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    import tvrecon.robot.pick_place as pp
+
+    def interrupted(cfg: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pp, "run_pick_place", interrupted)
+    monkeypatch.setattr(sys, "argv", ["pick_place", f"out_dir={tmp_path}", f"hydra.run.dir={tmp_path / 'hydra'}"])
+    with pytest.raises(SystemExit) as exc:
+        pp.main()
+    assert exc.value.code == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == f"{PROG}: interrupted"

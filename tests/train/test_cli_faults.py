@@ -133,7 +133,7 @@ def test_nan_loss_stops_training_naming_the_step_the_terms_and_the_fix(tmp_path:
 def test_check_finite_loss_passes_finite_and_names_every_term() -> None:
     module = L.LightningModule()
     check_finite_loss(module, {"loss": torch.tensor(1.0), "edge": torch.tensor(0.5)})
-    with pytest.raises(NonFiniteLossError, match=r"training loss is inf at epoch 0, step 0 \(terms: loss=inf, edge=0.5\)"):
+    with pytest.raises(NonFiniteLossError, match=r"loss is inf at epoch 0, step 0 \(terms: loss=inf, edge=0.5\)"):
         check_finite_loss(module, {"loss": torch.tensor(float("inf")), "edge": torch.tensor(0.5)})
 
 
@@ -157,18 +157,28 @@ def test_ctrl_c_in_training_exits_130_naming_the_checkpoint_to_resume_from(
     assert "training interrupted (Ctrl-C) at epoch 1, step 2;" in err and f"resume with ckpt_path={last}" in err
 
 
-def test_eval_refuses_a_classifier_on_reconstruction_data(tmp_path: Path) -> None:
-    """Issue 28: `eval.py ckpt_path=<classifier> data=tiny` exited 0."""
+def test_a_classifier_on_reconstruction_data_is_refused() -> None:
+    """Issue 28: `eval.py ckpt_path=<classifier> data=tiny` exited 0; `train.py experiment=classify data=tiny` ended
+    in an unrelated rotate_touches TypeError."""
     from eval import check_model_matches_data
 
     cls = "tvrecon.models.lit_cls.ClassificationModule"
     recon = "tvrecon.models.lit_recon.ReconstructionModule"
-    with pytest.raises(ValueError, match=r"holds a classifier .* reconstruction data .*cls_tiny, cls_small"):
-        check_model_matches_data(cls, "tvrecon.data.datamodule.ReconstructionDataModule", "c.ckpt")
+    with pytest.raises(ValueError, match=r"c.ckpt holds a classifier .* reconstruction data .*cls_tiny, cls_small"):
+        check_model_matches_data(cls, "tvrecon.data.datamodule.ReconstructionDataModule", "ckpt_path=c.ckpt")
     with pytest.raises(ValueError, match=r"holds a reconstruction model .* classification data .*tiny, small"):
-        check_model_matches_data(recon, "tvrecon.data.datamodule.ClassificationDataModule", "r.ckpt")
-    check_model_matches_data(cls, "tvrecon.data.datamodule.ClassificationDataModule", "c.ckpt")
+        check_model_matches_data(recon, "tvrecon.data.datamodule.ClassificationDataModule", "ckpt_path=r.ckpt")
+    check_model_matches_data(cls, "tvrecon.data.datamodule.ClassificationDataModule", "ckpt_path=c.ckpt")
     check_model_matches_data(cls, "synthetic.SyntheticClassificationDataModule", "c.ckpt")  # test data: no check
+
+
+def test_train_cli_classifier_on_reconstruction_data_is_one_line_exit_2(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["experiment=classify", "data=tiny", f"hydra.run.dir={tmp_path}", "~logger"]
+    assert _run_train_cli(args, monkeypatch) == 2
+    line = _one_error_line(capsys.readouterr().err, "python train.py")
+    assert "experiment=classify holds a classifier" in line and "reconstruction data" in line and "cls_tiny" in line
 
 
 def test_eval_cli_classifier_on_reconstruction_data_is_one_line_exit_2(
