@@ -245,6 +245,27 @@ class _Run:
             self.step()
         self.step(self.seconds(self.cfg.settle_time))
 
+    def supported(self) -> bool:
+        """Whether the object touches anything but the pads (the table)."""
+        d, s = self.scene.data, self.scene
+        pads = {p.geom for p in self.pads}
+        for g1, g2 in np.asarray(d.contact.geom[: d.ncon]):
+            if s.object_geom in (g1, g2) and not ({int(g1), int(g2)} & pads):
+                return True
+        return False
+
+    def lower_until_supported(self, speed: float = 0.02, max_drop: float = 0.03) -> bool:
+        """Lower the grasp point at ``speed`` m/s until the held object touches the table (at most ``max_drop``)."""
+        start = self.scene.commanded_grasp_point()
+        n = self.seconds(max_drop / speed)
+        for k in range(1, n + 1):
+            if self.supported():
+                break
+            self.scene.command_hand(start - np.array([0.0, 0.0, max_drop * k / n]), self.yaw)
+            self.step()
+        self.step(self.seconds(self.cfg.settle_time))
+        return self.supported()
+
     def close_until_contact(self, timeout: float = 2.0) -> bool:
         """Close with the contact force until both pads touch (or the fingers are shut)."""
         self.grip_force = self.cfg.contact_force
@@ -323,7 +344,8 @@ def _execute(run: _Run) -> tuple[bool, str, str, GraspPlan | None, float]:
         return False, "grasp failed: the object was dropped while carrying", "carry", plan, float("nan")
 
     run.set_phase("place")
-    run.move_to(plan.position + offset + np.array([0.0, 0.0, 0.003]), speed=cfg.speed / 2)
+    run.move_to(plan.position + offset + np.array([0.0, 0.0, 0.01]), speed=cfg.speed / 2)
+    run.lower_until_supported()  # set it down instead of dropping it: a tilted or round object rolls off a drop
 
     run.set_phase("release")
     run.grip_force = -10.0
