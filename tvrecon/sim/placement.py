@@ -50,6 +50,10 @@ def clearance_cells(s: SensorConfig, p: PressConfig) -> float:
     return float(s.thickness) + float(p.gap) + RAY_START_MARGIN_CELLS
 
 
+def _num(value: object) -> str:
+    return f"{float(value.detach()) if isinstance(value, Tensor) else float(value):g}"  # type: ignore[arg-type]
+
+
 def pad_reach(s: SensorConfig, p: PressConfig) -> float:
     """How far (domain units) the surface may lie from ``position`` along the press axis."""
     dx = 1.0 / int(p.n_grid)
@@ -105,7 +109,14 @@ def place_touch(
     d = -R[:, 2]
     reach = pad_reach(s, p)
     if reach <= 0:
-        raise ValueError(f"the domain ({p.n_grid} cells) is too small for a pad of thickness {s.thickness} cells")
+        need = s.thickness + float(p.gap) + float(p.max_depth) + REACH_MARGIN_CELLS
+        depth = f"; a depth of {_num(p.depth)} cells sets it to {_num(p.depth)} + 0.5" if p.depth is not None else ""
+        raise ValueError(
+            f"the press does not fit in the domain: pad thickness {s.thickness:g} + gap {_num(p.gap)} + max_depth "
+            f"{_num(p.max_depth)} (the hand's travel{depth}) + margin {REACH_MARGIN_CELLS:g} = {need:g} cells, more "
+            f"than half the domain (n_grid / 2 = {int(p.n_grid) / 2:g} cells). Press less deep (depth / max_depth) "
+            f"or raise n_grid"
+        )
     # mesh in the sensor frame centred on `position`, in domain units (not yet shifted by 0.5)
     Rn = R.double().numpy()
     local = (np.asarray(mesh.vertices, dtype=np.float64) - pos.double().numpy()) @ Rn / S
