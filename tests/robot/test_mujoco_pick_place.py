@@ -80,3 +80,24 @@ def test_a_short_run_picks_and_places_the_cube(tmp_path) -> None:
     assert not contact[-1].any() and not log["tactile"][-1].any()  # back at rest after the release
     assert res.strip_path is not None and res.strip_path.exists() and res.log_path.exists()
     assert res.num_presses >= 2
+
+
+@pytest.mark.parametrize("backend", ["disable", "osmesa"])
+def test_no_gl_backend_gives_a_one_line_reason(backend: str) -> None:
+    """Without a usable OpenGL backend (none, or one whose library is missing) MuJoCo still imports and the renderer
+    says why in one line (the demo then plans from the model's geometry)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from tvrecon.robot.mujoco_camera import RendererUnavailable, mujoco, open_renderer\n"
+        "m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"0.1\"/></worldbody></mujoco>')\n"
+        "try:\n    open_renderer(m, 8, 8)\nexcept RendererUnavailable as err:\n    print('REASON', err)\n"
+    )
+    env = {**os.environ, "MUJOCO_GL": backend}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    reasons = [line for line in out.stdout.splitlines() if line.startswith("REASON")]
+    assert out.returncode == 0, out.stderr[-2000:]
+    if backend == "osmesa" and not reasons:  # pragma: no cover - a machine with OSMesa renders
+        pytest.skip("OSMesa is installed here")
+    assert len(reasons) == 1 and "MuJoCo cannot render" in reasons[0]

@@ -7,10 +7,20 @@
 from __future__ import annotations
 
 import os
+import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless offscreen rendering; read when mujoco is imported
 
-import mujoco  # noqa: E402
+_GL_IMPORT_ERROR = ""
+try:
+    import mujoco
+except AttributeError as _err:  # PyOpenGL found no library for the MUJOCO_GL backend (e.g. osmesa not installed)
+    _GL_IMPORT_ERROR = f"MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} has no OpenGL library here ({_err})"
+    for _name in [n for n in sys.modules if n.split(".")[0] in ("mujoco", "OpenGL")]:
+        del sys.modules[_name]  # the failed import left half-built modules behind
+    os.environ["MUJOCO_GL"] = "disable"  # physics only; open_renderer says why there are no images
+    import mujoco
+
 import numpy as np  # noqa: E402
 
 __all__ = ["RendererUnavailable", "MujocoCamera", "open_renderer", "depth_to_world"]
@@ -26,7 +36,7 @@ def open_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Rend
         return mujoco.Renderer(model, height=int(height), width=int(width))
     except Exception as err:  # the GL backends raise several types (RuntimeError, ImportError, mujoco.FatalError)
         backend = os.environ.get("MUJOCO_GL", "")
-        reason = " ".join(str(err).split())[:200]
+        reason = _GL_IMPORT_ERROR or " ".join(str(err).split())[:200]
         raise RendererUnavailable(
             f"MuJoCo cannot render (MUJOCO_GL={backend!r}: {reason}); install EGL (libegl1) or run with a display"
         ) from err
