@@ -95,6 +95,7 @@ def test_systemexit_and_return_codes_pass_through() -> None:
     assert exc.value.code == 2
 
 
+@pytest.mark.slow  # two fresh interpreters importing torch: ~10-30 s on shared cores
 def test_generate_command_bad_preset_is_one_line_exit_2_and_debug_shows_the_traceback() -> None:
     """A real process: the exit status and stderr a shell sees (before: a 30-line traceback above the message)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
