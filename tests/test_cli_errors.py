@@ -144,3 +144,13 @@ def test_preview_and_tables_are_one_line(tmp_path: Path, capsys) -> None:
     (tmp_path / "file").write_text("")
     assert call_cli(tables, [str(tmp_path / "run"), "--out", str(tmp_path / "file" / "t")], prog="tables") == 2
     assert str(tmp_path / "file") in _one_error_line(capsys.readouterr().err, "tables")
+
+
+def test_generate_unwritable_cache_is_one_line(tmp_path: Path, capsys) -> None:
+    from tvrecon.data.generate import main
+
+    (tmp_path / "file").write_text("")
+    prog = "python -m tvrecon.data.generate"
+    argv = ["preset=tiny", "splits=val", "workers=1", f"cache_dir={tmp_path / 'file' / 'cache'}"]
+    assert call_cli(main, argv, prog=prog) == 2
+    assert "is read-only (Not a directory)" in _one_error_line(capsys.readouterr().err, prog)
