@@ -27,3 +27,20 @@ def test_smallest_n_grid_is_one_line_naming_the_sum(tmp_path: Path, capsys) -> N
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("python -m tvrecon.sim: error: the press does not fit in the domain")
     assert "= 10 cells, more than half the domain (n_grid / 2 = 8 cells)" in lines[0] and "raise n_grid" in lines[0]
+
+
+def test_a_mesh_in_mm_says_how_it_was_rescaled_and_a_second_press_into_one_out_warns(tmp_path: Path, capsys) -> None:
+    """Issue 28: a --position in the file's own units was refused without a word about the rescaling, and two
+    presses into one --out mixed their files silently."""
+    part = trimesh.creation.box(extents=(50.0, 50.0, 50.0))
+    part.apply_translation((100.0, 0.0, 25.0))  # a 50 mm cube off the origin, as a CAD export
+    path = tmp_path / "cube_mm.stl"
+    part.export(path)
+    args = ["press", "--shape", str(path), "--depth", "0.5", "--resolution", "8", "--layers", "3", "--n-grid", "32"]
+    args += ["--frames", "1", "--ply", "0", "--threads", "1", "--out", str(tmp_path / "out")]
+    assert main(args) == 0
+    out = capsys.readouterr()
+    assert "cube_mm.stl: centred at [100.0, 0.0, 25.0] and scaled by 1/50 to a largest extent of 1" in out.out
+    assert "--position is in these units" in out.out and "warning" not in out.err
+    assert main(args) == 0
+    assert "already holds a press (reading.npz)" in capsys.readouterr().err

@@ -82,8 +82,15 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
             f"probably scaled or rounded to nothing (e.g. a 1e-9 scale written with a few decimals); export it in "
             f"its original units"
         )
-    mesh.apply_translation(-mesh.bounds.mean(0))
+    centre = mesh.bounds.mean(0)
+    mesh.apply_translation(-centre)
     mesh.apply_scale(1.0 / extent)
+    if abs(extent - 1.0) > 1e-6 or np.abs(centre).max() > 1e-6:  # --position is in the rescaled units: say so
+        print(
+            f"{path.name}: centred at {np.round(centre, 6).tolist()} and scaled by 1/{extent:.6g} to a largest extent "
+            f"of 1; --position is in these units (a point p of the file is (p - centre) / {extent:.6g})",
+            flush=True,
+        )
     return mesh
 
 
@@ -138,6 +145,13 @@ def check_outputs(args: argparse.Namespace) -> Path:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file: give a folder (it will hold tactile.png, reading.npz, ...)")
+    if (out / "reading.npz").is_file():  # a second press into one folder: its files would mix with the first's
+        print(
+            f"warning: --out {out} already holds a press (reading.npz): its files are overwritten, and pad_step*.ply "
+            f"files of the earlier press may remain beside the new ones; give a new folder to keep them apart",
+            file=sys.stderr,
+            flush=True,
+        )
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):  # the real test: permissions, read-only file systems, quotas
