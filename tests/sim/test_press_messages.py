@@ -44,3 +44,11 @@ def test_a_mesh_in_mm_says_how_it_was_rescaled_and_a_second_press_into_one_out_w
     assert "--position is in these units" in out.out and "warning" not in out.err
     assert main(args) == 0
     assert "already holds a press (reading.npz)" in capsys.readouterr().err
+
+
+def test_an_object_many_domains_across_warns_about_its_units() -> None:
+    """Issue 28: a 50 mm cube given in mm (50 units) was pressed silently as one flat face."""
+    cube_mm = trimesh.creation.box(extents=(50.0, 50.0, 50.0))
+    sim = EIPSimulator(SensorConfig(resolution=(8, 8), layers=3), PressConfig(n_grid=32, depth=0.5))
+    with pytest.warns(RuntimeWarning, match=r"the object is 50 domains across .*mesh.apply_scale\(1e-3\)"):
+        sim.press(cube_mm, None, [0.0, 0.0, -1.0])

@@ -11,6 +11,7 @@ pipeline the same clearance, so the touches it samples (:func:`pad_reachable`) a
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -32,6 +33,8 @@ RAY_START_MARGIN_CELLS = 6.0
 
 #: Cells kept free between the far end of the pad's travel and the domain's edge (:func:`pad_reach`).
 REACH_MARGIN_CELLS = 4.0
+#: an object more than this many domains across is pressed with a warning (its units are probably wrong)
+LARGE_OBJECT_DOMAINS = 10.0
 
 
 def touch_z(dx: float) -> float:
@@ -102,6 +105,15 @@ def place_touch(
             f"{extent_cells * S / int(p.n_grid):.3g} world units, one cell = domain_size/n_grid = "
             f"{S / int(p.n_grid):.3g}): the pad would miss it. Scale the object up, or lower domain_size (the pad "
             f"shrinks with it) or raise n_grid so it spans several cells"
+        )
+    if extent_cells > LARGE_OBJECT_DOMAINS * int(p.n_grid):  # e.g. a CAD part in mm pressed as if in metres
+        warnings.warn(
+            f"the object is {extent_cells / int(p.n_grid):.3g} domains across (largest extent "
+            f"{extent_cells * S / int(p.n_grid):.4g} world units, domain_size {S:g}): the pad, smaller than one "
+            f"domain, touches a patch that is flat at this scale. If the mesh is in mm, scale it to metres "
+            f"(mesh.apply_scale(1e-3)) or raise domain_size",
+            RuntimeWarning,
+            stacklevel=3,
         )
     pos = as_vec3(position, "position")
     d = as_vec3(direction, "direction")
