@@ -1,5 +1,5 @@
 """The paper's touches (tvrecon.data.touch_sweep): centre aim, side-to-top sweep, depth, the presets' ratios, and a
-touch that loses a thin part pressed again."""
+touch that misses a thin part, a diverging touch."""
 
 import warnings
 from pathlib import Path
@@ -11,6 +11,7 @@ import trimesh
 from omegaconf import OmegaConf
 
 from tvrecon.data.datasets import TactileClassificationDataset
+from tvrecon.data.touch_report import contact_report
 from tvrecon.data.touch_sweep import AUTHORS_RATIOS, PaperSweepTouchPolicy, eip_geometry_ratios, sweep_directions
 from tvrecon.data.touches import make_touch_policy, sample_touches
 from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig
@@ -101,33 +102,28 @@ def test_a_top_press_shows_the_whole_face_and_a_sphere_reads_round() -> None:
     assert areas["sphere"] < 0.5 * areas["cube"]
 
 
-def test_a_touch_that_loses_a_thin_part_is_pressed_again() -> None:
-    """The fork's tines and handle are under a cell thick on eip_tiny's grid: the depth stop, counted from where the
-    ray cast met them, ends before the pad feels them; the dataset presses those touches again on the eq. 12 stop with
-    the travel of the whole object, and some then read the fork (the rest stay blank, ``contact`` False)."""
+def test_a_touch_that_misses_a_thin_part_reads_blank_and_is_reported_per_class(tmp_path: Path) -> None:
+    """The fork's tines and handle are under a cell thick on eip_tiny's grid: some sweep touches never feel it. They
+    stay blank readings with ``contact`` False (control: the cube in the same dataset feels every touch), and
+    ``contact_report`` counts them per class from the cache."""
     ds = TactileClassificationDataset(
         num_objects=6,
+        classes=["cube", "fork"],
         touches_per_object=10,
         touch=_block("touch", "paper_sweep"),
-        cache_dir=None,
+        cache_dir=tmp_path,
         sensor=_block("sensor", "eip_tiny"),
         press=_block("press", "eip_tiny"),
     )
-    index = 5
-    assert ds.object_of(index) == ("fork", 0)
-    mesh, seed = ds.mesh(index), ds.seeds(index)[0]
-    t = sample_touches(mesh, 10, seed=seed, policy=ds.touch, sim=ds.simulator)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        first = np.array(
-            [bool(r.contact) for r in ds.simulator.press_batch(mesh, t.positions, t.directions, **t.strengths[0])]
-        )
-    out = ds._simulate(mesh, seed)
-    rescued = out["contact"] & ~first
-    assert (~first).sum() >= 2 and rescued.sum() >= 1
-    assert (out["contact"] | ~first).all()  # a touch that felt the fork keeps its reading
-    assert (out["tactile"][rescued, 2].reshape(int(rescued.sum()), -1).max(1) > 0.02).all()  # blank: < 1e-4
-    assert np.allclose(out["tactile"][~out["contact"]], 0.0, atol=0.01)  # what still misses reads blank
+        cube, fork = ds.raw(0)[0], ds.raw(1)[0]
+    assert cube["contact"].all() and (~fork["contact"]).sum() >= 2
+    assert np.abs(fork["tactile"][~fork["contact"]]).max() < 0.01  # blank, not noise
+    assert fork["tactile"][fork["contact"], 2].max() > 0.02  # what it felt is faint: under a cell thick
+    report = contact_report(ds)
+    assert report.items_missing == 4 and report.missed == {"cube": 0, "fork": int((~fork["contact"]).sum())}
+    assert report.total == {"cube": 10, "fork": 10} and "fork" in report.line() and "cube" not in report.line()
 
 
 def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
@@ -154,3 +150,15 @@ def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
         ds.simulator.press_batch(mesh, one.positions, one.directions, **one.strengths[0])
     (reading,) = ds._simulate_stable(mesh, one)
     assert torch.isfinite(reading.image).all() and reading.steps > 0
+
+
+def test_shuffled_order_is_the_same_sweep_and_sweep_order_keeps_the_key() -> None:
+    sim = _tiny_sim()
+    box = trimesh.creation.box()
+    swept = sample_touches(box, 10, seed=5, policy=PaperSweepTouchPolicy(), sim=sim)
+    shuffled = sample_touches(box, 10, seed=5, policy=PaperSweepTouchPolicy(order="shuffled"), sim=sim)
+    order = np.argsort(-shuffled.directions[:, 2].numpy())  # the sweep's elevation rises with -d_z
+    assert torch.allclose(shuffled.directions[order], swept.directions, atol=1e-6)
+    assert not torch.allclose(shuffled.directions, swept.directions)
+    assert "order" not in PaperSweepTouchPolicy().cache_spec()  # the default stays out of the cache key
+    assert PaperSweepTouchPolicy(order="shuffled").cache_spec()["order"] == "shuffled"

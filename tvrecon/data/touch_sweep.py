@@ -21,6 +21,7 @@ import numpy as np
 import torch
 import trimesh
 
+from tvrecon.config_utils import OMIT_IF_DEFAULT
 from tvrecon.data.touches import Touches, TouchPolicy
 
 if TYPE_CHECKING:
@@ -74,12 +75,16 @@ class PaperSweepTouchPolicy(TouchPolicy):
         depth_fractions: press depths past first contact as fractions of the object's max extent, each in (0, 0.5).
         azimuth_jitter_deg: per-touch extra turn about the vertical, uniform in +-this, degrees (0: one plane).
         aim: ``"centre"`` (the bounding-box centre, the authors') or ``"centroid"`` (the volume centroid).
+        order: ``"sweep"`` (the touches in sweep order, side first) or ``"shuffled"`` (the same sweep in a random
+            order). Reconstruction samples use the first T cached touches, so their presets shuffle: the first two
+            touches are then any two of the sweep, not the two side ones. Classification draws its own touches.
     """
 
     elevation_deg: Sequence[float] = (0.0, 90.0)
     depth_fractions: Sequence[float] = field(default_factory=lambda: (AUTHORS_RATIOS["depth_fraction"],))
     azimuth_jitter_deg: float = 0.0
     aim: str = "centre"
+    order: str = field(default="sweep", metadata=OMIT_IF_DEFAULT)
 
     def __post_init__(self) -> None:
         what = type(self).__name__
@@ -98,6 +103,8 @@ class PaperSweepTouchPolicy(TouchPolicy):
             raise ValueError(f"{what}.azimuth_jitter_deg must be in [0, 180], got {self.azimuth_jitter_deg}")
         if self.aim not in ("centre", "centroid"):
             raise ValueError(f"{what}.aim must be 'centre' or 'centroid', got {self.aim!r}")
+        if self.order not in ("sweep", "shuffled"):
+            raise ValueError(f"{what}.order must be 'sweep' or 'shuffled', got {self.order!r}")
 
     def sample(self, mesh, n, rng, camera=None, sim=None) -> Touches:  # the arguments of TouchPolicy.sample
         if sim is None:
@@ -112,6 +119,9 @@ class PaperSweepTouchPolicy(TouchPolicy):
         centre = mesh.bounds.mean(axis=0) if self.aim == "centre" else mesh.center_mass
         extent_cells = self.extent_cells(mesh, sim)
         which = rng.integers(len(self.depth_fractions), size=n)
+        if self.order == "shuffled":
+            perm = rng.permutation(n)
+            dirs, which = dirs[perm], which[perm]
         return Touches(
             positions=torch.as_tensor(np.repeat(centre[None], n, axis=0), dtype=torch.float32),
             directions=torch.as_tensor(dirs, dtype=torch.float32),

@@ -26,7 +26,7 @@ import trimesh
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from tvrecon.config_utils import coerce_config
+from tvrecon.config_utils import coerce_config, omitted_from_key
 from tvrecon.data.render import Camera, ray_intersector
 from tvrecon.geometry import check_mesh, perpendicular_basis, world_to_camera
 from tvrecon.sim.placement import pad_footprint, pad_reachable  # the pad's placement, importable from here too
@@ -96,7 +96,11 @@ class TouchPolicy:
         The default policy (:class:`ConeTouchPolicy`, exactly that class) gives its fields only, the key every sample
         had before policies were pluggable, so existing caches stay valid; any other policy adds its ``_target_``.
         """
-        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+        fields = {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)  # type: ignore[arg-type]
+            if not omitted_from_key(f, getattr(self, f.name))  # a field added later, at its default: old keys hold
+        }
         if type(self) is ConeTouchPolicy:
             return fields
         return {"_target_": f"{type(self).__module__}.{type(self).__qualname__}", **fields}
