@@ -154,3 +154,13 @@ def test_generate_unwritable_cache_is_one_line(tmp_path: Path, capsys) -> None:
     argv = ["preset=tiny", "splits=val", "workers=1", f"cache_dir={tmp_path / 'file' / 'cache'}"]
     assert call_cli(main, argv, prog=prog) == 2
     assert "is read-only (Not a directory)" in _one_error_line(capsys.readouterr().err, prog)
+
+
+def test_shapes_bad_options_are_one_line(tmp_path: Path, capsys) -> None:
+    from tvrecon.data.shapes.__main__ import main as shapes
+
+    prog = "python -m tvrecon.data.shapes"
+    assert call_cli(shapes, ["--out", str(tmp_path), "--user-root", str(tmp_path / "missing")], prog=prog) == 2
+    assert "is not a directory" in _one_error_line(capsys.readouterr().err, prog)
+    assert call_cli(shapes, ["--out", str(tmp_path), "--deform", "3"], prog=prog) == 2
+    assert "deform must be a strength in [0, 0.5]" in _one_error_line(capsys.readouterr().err, prog)

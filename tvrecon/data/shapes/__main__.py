@@ -36,4 +36,6 @@ def main(argv: list[str] | None = None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    from tvrecon.cli_errors import run_cli
+
+    run_cli(main, prog="python -m tvrecon.data.shapes")  # errors: one line, exit 2 / 1 / 130
