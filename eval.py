@@ -35,6 +35,7 @@ from tvrecon.run import (  # noqa: E402
     report_tables,
     save_results,
 )
+from tvrecon.tables import data_protocol  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -129,7 +130,12 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
     result = getattr(model, "test_results", None)
     if result is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
-    result = {**result, "seed": run_cfg.get("seed"), "checkpoint": str(ckpt)}
+    result = {
+        **result,
+        "seed": run_cfg.get("seed"),
+        "checkpoint": str(ckpt),
+        "data_protocol": data_protocol(run_cfg.data),
+    }
     if trainer.is_global_zero:
         save_results(result, out_dir)
     return result

@@ -38,6 +38,7 @@ from tvrecon.run import (  # noqa: E402  (also importable from train)
     report_tables,
     save_results,
 )
+from tvrecon.tables import data_protocol  # noqa: E402
 from tvrecon.viz import plot_loss_curves  # noqa: E402
 
 __all__ = [
@@ -184,7 +185,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
         result = getattr(model, "test_results", None)
         if result is not None and trainer.is_global_zero:
-            result = {**result, "seed": cfg.get("seed"), "checkpoint": best}
+            result = {**result, "seed": cfg.get("seed"), "checkpoint": best, "data_protocol": data_protocol(cfg.data)}
             save_results(result, out_dir)
             if cfg.get("tables", True):
                 tables = report_tables([result], out_dir)

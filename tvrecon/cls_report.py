@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, mean_std
+from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, data_label, data_note, mean_std
 
 __all__ = [
     "build_per_class_table",
@@ -214,16 +214,17 @@ def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
     is the sample standard deviation (ddof=1) over runs, 0 for a single run; ``n`` runs are reported.
     """
     cls = [r for r in check_results(results) if r["task"] == "classification"]
-    groups: dict[str, list[Mapping[str, Any]]] = {}
-    for r in cls:
-        groups.setdefault(str(r["name"]), []).append(r)
+    groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+    for r in cls:  # runs on other touches or another split protocol are other rows, never averaged together
+        groups.setdefault((str(r["name"]), data_label(r)), []).append(r)
+    several = len({data for _, data in groups}) > 1
     rows: list[list[str]] = []
     notes = []
-    for name, runs in groups.items():
+    for (name, data), runs in groups.items():
         for key, suffix in (("accuracy", ""), ("accuracy_other", ", another object's touches")):
             if key != "accuracy" and not any(isinstance(r.get(key), Mapping) for r in runs):
                 continue
-            cells = [PRETTY_NAMES.get(name, name) + suffix]
+            cells = [PRETTY_NAMES.get(name, name) + (f" [{data}]" if several else "") + suffix]
             counts = []
             for k in touches:
                 values = [100.0 * float(r[key][str(k)]) for r in runs if str(k) in (r.get(key) or {})]
@@ -236,6 +237,7 @@ def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
             rows.append(cells)
             notes.append(f"{cells[0]}: runs per column " + ", ".join(f"{k}: {n}" for k, n in zip(touches, counts)))
     notes.insert(0, "Accuracy (%) over the test split, mean +- sample std over the runs (seeds).")
+    notes.insert(1, data_note(cls))
     if any(row[0].endswith("another object's touches") for row in rows):
         notes.insert(
             1,

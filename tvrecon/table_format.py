@@ -14,7 +14,31 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["CLS_TOUCHES", "PRETTY_NAMES", "Table", "check_results", "fmt", "mean_std"]
+__all__ = ["CLS_TOUCHES", "PRETTY_NAMES", "Table", "check_results", "data_label", "data_note", "fmt", "mean_std"]
+
+#: Touch policies by the short name the tables give them (``data_protocol.touch`` of a result).
+TOUCH_NAMES: dict[str, str] = {
+    "PaperSweepTouchPolicy": "the paper's touches (centre aim, side-to-top sweep)",
+    "ConeTouchPolicy": "cone touches (random surface points)",
+}
+
+
+def data_label(result: Mapping[str, Any]) -> str:
+    """``"<touch policy>, <split protocol> split"`` of a result's ``data_protocol`` (train.py / eval.py record it;
+    :func:`tvrecon.tables.collect_results` fills it from a run's ``.hydra/config.yaml``), ``"data not recorded"``
+    without one."""
+    dp = result.get("data_protocol")
+    if not isinstance(dp, Mapping):
+        return "data not recorded"
+    touch = str(dp.get("touch", "?"))
+    return f"{TOUCH_NAMES.get(touch, touch)}, {dp.get('split', '?')} split"
+
+
+def data_note(results: Iterable[Mapping[str, Any]]) -> str:
+    """One caption line naming the touches and the split protocol of the results (each distinct pair once)."""
+    labels = sorted({data_label(r) for r in results})
+    return "Data: " + "; ".join(labels) + "."
+
 
 CLS_TOUCHES: tuple[int, ...] = (1, 2, 4, 6, 8, 10)
 

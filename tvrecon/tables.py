@@ -38,12 +38,13 @@ from typing import Any
 from tvrecon.atomic import atomic_write_text
 from tvrecon.cls_report import build_table2, write_classification_plots
 from tvrecon.data.shapes.registry import RECON_CLASSES
-from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, fmt, mean_std
+from tvrecon.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, data_note, fmt, mean_std
 
 log = logging.getLogger(__name__)
 
 # re-exported: the tables' public names from one module
 __all__ = [
+    "data_protocol",
     "CLS_TOUCHES",
     "PRETTY_NAMES",
     "Table",
@@ -146,7 +147,8 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
             rows.append(row)
             refined = True
     notes = [
-        "Chamfer distance x1e-3 (1,000 points sampled on the predicted and ground-truth surfaces), lower is better."
+        "Chamfer distance x1e-3 (1,000 points sampled on the predicted and ground-truth surfaces), lower is better.",
+        data_note(recon),
     ]
     by_name = {str(r["name"]): r for r in recon}
     if "full" in by_name and ("visual_only" in by_name or "tactile_only" in by_name):
@@ -324,6 +326,17 @@ def format_tables(tables: Mapping[str, Table]) -> str:
     return "\n".join(tables[k].to_markdown() for k in keys)
 
 
+def data_protocol(data_cfg: Mapping[str, Any]) -> dict[str, str]:
+    """What a run's data config says of its touches and split: ``{"touch": <policy class name>, "split": <library
+    protocol>}`` (a data config without a ``touch`` block uses the default cone policy, without ``library.protocol``
+    the ``unseen`` split)."""
+    touch = data_cfg.get("touch") or {}
+    target = str(touch.get("_target_", "ConeTouchPolicy")) if isinstance(touch, Mapping) else "ConeTouchPolicy"
+    library = data_cfg.get("library") or {}
+    split = str(library.get("protocol", "unseen")) if isinstance(library, Mapping) else "unseen"
+    return {"touch": target.rpartition(".")[2], "split": split}
+
+
 def collect_results(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
     """Load every ``metrics.json`` at or below ``paths`` (files or folders), in sorted path order.
 
@@ -347,7 +360,14 @@ def collect_results(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
     bad = []
     for f in files:
         try:
-            results.append(json.loads(f.read_text()))
+            result = json.loads(f.read_text())
+            if isinstance(result, dict) and "data_protocol" not in result:  # a run from before it was recorded
+                cfg = f.parent / ".hydra" / "config.yaml"
+                if cfg.is_file():
+                    from omegaconf import OmegaConf
+
+                    result["data_protocol"] = data_protocol(OmegaConf.load(cfg).get("data") or {})
+            results.append(result)
         except (json.JSONDecodeError, UnicodeDecodeError) as err:  # e.g. truncated by a killed run: skip that run
             log.warning("skipping %s: it is not valid JSON (%s); re-run eval.py on its checkpoint", f, err)
             bad.append(str(f))

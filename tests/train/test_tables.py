@@ -214,3 +214,37 @@ def test_fscore_table_rows_without_and_with_refinement() -> None:
         ["Touch geometry (beyond the paper)", "2", "50.0", "80.0", "55.0", "85.0"],
     ]
     assert "fscore" not in build_tables([FULL])  # no F-scores in the results: no table
+
+
+def test_table2_rows_and_captions_name_the_touches_and_the_split(tmp_path) -> None:
+    """Runs of one model on two split protocols are two labelled rows, never averaged; the caption names the data; a
+    run folder from before ``data_protocol`` was recorded gets it from its ``.hydra/config.yaml``."""
+    import json
+
+    from tvrecon.tables import collect_results
+
+    sweep = {"touch": "PaperSweepTouchPolicy", "split": "shared_base"}
+    results = [
+        {"task": "classification", "name": "classify", "seed": 0, "accuracy": {"1": 0.6}, "data_protocol": sweep},
+        {
+            "task": "classification",
+            "name": "classify",
+            "seed": 0,
+            "accuracy": {"1": 0.4},
+            "data_protocol": {**sweep, "split": "unseen"},
+        },
+    ]
+    table = build_table2(results)
+    rows = _csv_rows(table.to_csv())
+    assert [r[:2] for r in rows[1:]] == [
+        ["Tactile classifier [the paper's touches (centre aim, side-to-top sweep), shared_base split]", "60.0 +- 0.0"],
+        ["Tactile classifier [the paper's touches (centre aim, side-to-top sweep), unseen split]", "40.0 +- 0.0"],
+    ]
+    assert any(n.startswith("Data: the paper's touches") and "shared_base split; " in n for n in table.notes)
+    run = tmp_path / "run"
+    (run / ".hydra").mkdir(parents=True)
+    (run / "metrics.json").write_text(json.dumps({k: v for k, v in results[0].items() if k != "data_protocol"}))
+    (run / ".hydra" / "config.yaml").write_text("data:\n  touch: {cone_deg: 15.0}\n  library: {deform: 0.1}\n")
+    (loaded,) = collect_results([run])
+    assert loaded["data_protocol"] == {"touch": "ConeTouchPolicy", "split": "unseen"}
+    assert "Data: cone touches (random surface points), unseen split." in build_table2([loaded]).notes
