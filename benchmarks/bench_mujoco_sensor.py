@@ -11,7 +11,8 @@ demo's pad (24x24x4 on n_grid 64) unless told otherwise. Rows:
 - ``step, no contact``: the gripper open, ``mj_step`` + ``sense_pads``: rest readings (target < 5 ms).
 
 Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_mujoco_sensor.py [--repeats 3] [--resolution 24] [--n-grid 64]``.
-Absolute seconds drift on a loaded machine; the ratio (sensor step / presses alone) is the number to read.
+Times are this process's CPU time (``time.process_time``), the presses taking turns, so other jobs on a shared
+machine count less; the ratio (sensor step / presses alone) is the number to read.
 """
 
 from __future__ import annotations
@@ -33,12 +34,22 @@ from tvrecon.robot.pad import LazySimulator, PadConfig, sense_pads  # noqa: E402
 
 
 def _time(fn, repeats: int) -> float:
+    """Median CPU seconds of this process per call (not wall time: other jobs on a shared machine do not count)."""
     out = []
     for _ in range(repeats):
-        t = time.perf_counter()
+        t = time.process_time()
         fn()
-        out.append(time.perf_counter() - t)
+        out.append(time.process_time() - t)
     return statistics.median(out)
+
+
+def _interleaved(fns: dict, repeats: int) -> dict:
+    """Median CPU seconds of each call, the calls taking turns so that a load change hits them alike."""
+    out = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            out[k].append(_time(fn, 1))
+    return {k: statistics.median(v) for k, v in out.items()}
 
 
 def main() -> None:
@@ -106,13 +117,12 @@ def main() -> None:
         sense_pads(pads)
 
     depths = {j["depth"] for j in jobs}
-    step_t = _time(contact_step, args.repeats)
-    batch_t = _time(presses_batch, args.repeats)
-    single_t = _time(presses_single, args.repeats)
+    t = _interleaved({"step": contact_step, "batch": presses_batch, "single": presses_single}, args.repeats)
+    step_t, batch_t, single_t = t["step"], t["batch"], t["single"]
     cached_t = _time(cached_step, 50 * args.repeats)
     print(
         f"pad {args.resolution}x{args.resolution}x{pad.layers}, n_grid {args.n_grid}, {args.threads} thread(s), "
-        f"press depths {sorted(round(x * 1e3, 3) for x in depths)} mm, median of {args.repeats}"
+        f"press depths {sorted(round(x * 1e3, 3) for x in depths)} mm, median CPU time of {args.repeats}"
     )
     print("| row | ms | / presses alone (batch) |")
     print("|---|---|---|")
