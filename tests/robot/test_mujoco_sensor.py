@@ -1,9 +1,12 @@
 """The MuJoCo TactileSensor: contacts read from MjData, the touched geom's own surface pressed, rest without contact."""
 
+import os
+
 import numpy as np
 import pytest
 import trimesh
 
+os.environ.setdefault("MUJOCO_GL", "egl")  # mujoco reads it once, at import: keep later rendering tests headless
 mujoco = pytest.importorskip("mujoco")
 
 from tvrecon.robot.mujoco_sensor import TactileSensor, geom_mesh, sense_pads  # noqa: E402
