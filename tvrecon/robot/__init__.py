@@ -3,6 +3,11 @@
 Needs the optional ``robot`` extra (``pip install tvrecon[robot]`` for pybullet). Entry point::
 
     python -m tvrecon.robot.pick_place object=can
+
+MuJoCo (the optional ``mujoco`` extra, imported only from its own modules):
+``tvrecon.robot.mujoco_sensor.TactileSensor`` is the pad on any MuJoCo geom or body,
+``python -m tvrecon.robot.mujoco_pick_place object=can`` the demo. The engine-independent pad both engines share is
+``tvrecon.robot.pad``.
 """
 
 from tvrecon.robot.finger import FingerReading, PadConfig, TactileFinger
