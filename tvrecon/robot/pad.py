@@ -109,7 +109,8 @@ class PadConfig:
         """A real sensor's pad (``tvrecon.sim.sensor_presets``: "digit", "gelsight_mini", ...) on ``n_grid`` cells.
 
         The resolution, layers, E and nu come from :func:`~tvrecon.sim.sensor_presets.sensor_config`, the hand speed
-        from its ``press_overrides``, and ``pad_size`` is the sensor's longer side in metres.
+        from its ``press_overrides``; ``pad_size`` is the span of the preset's contact layer in metres (its longer
+        side less one particle spacing, the convention of :attr:`dx`), so a cell is the preset's ``cell_mm``.
         """
         from tvrecon.sim.sensor_presets import SENSOR_PRESETS, sensor_config, speed_fraction_for
 
