@@ -15,6 +15,7 @@ import pybullet as p
 from tqdm.auto import tqdm
 
 from tvrecon.robot.finger import FingerReading, TactileFinger, sense_fingers
+from tvrecon.robot.pad import reading_record
 from tvrecon.robot.scene import (
     PANDA_ARM_JOINTS,
     PANDA_FINGER_JOINTS,
@@ -131,15 +132,7 @@ class ArmController:
                 "ee_pos": ee_pos,
                 "ee_quat": ee_orn,
                 "finger_q": self.scene.finger_positions(),
-                "contact": np.array([r.contact for r in readings]),
-                "force": np.array([r.force for r in readings]),
-                "force_vec": np.stack([r.force_vec for r in readings]),
-                "contact_pos": np.stack([r.position for r in readings]),
-                "direction": np.stack([r.direction for r in readings]),
-                "penetration": np.array([r.penetration for r in readings]),
-                "depth": np.array([r.depth for r in readings]),
-                "simulated": np.array([r.simulated for r in readings]),
-                "tactile": np.stack([r.image for r in readings]).astype(np.float32),
+                **reading_record(readings),
                 "frame": self.render(),
             }
         )

@@ -39,7 +39,7 @@ from tvrecon.robot.controller import PHASES  # noqa: E402
 from tvrecon.robot.mujoco_camera import MujocoCamera, RendererUnavailable  # noqa: E402
 from tvrecon.robot.mujoco_scene import FINGER_HALF, MAX_OPENING, MujocoScene, MujocoSceneConfig  # noqa: E402
 from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import FingerReading, LazySimulator, PadConfig, sense_pads  # noqa: E402
+from tvrecon.robot.pad import FingerReading, LazySimulator, PadConfig, reading_record, sense_pads  # noqa: E402
 from tvrecon.robot.perception import GraspPlan, plan_top_grasp  # noqa: E402
 
 __all__ = ["MujocoPickPlaceConfig", "MujocoPickPlaceResult", "resolve_object_mesh", "run_mujoco_pick_place", "main"]
@@ -218,16 +218,8 @@ class _Run:
                 "object_quat": quat,
                 "ee_pos": s.grasp_point(),
                 "finger_q": s.finger_positions(),
-                "contact": np.array([r.contact for r in readings]),
-                "force": np.array([r.force for r in readings]),
-                "force_vec": np.stack([r.force_vec for r in readings]),
-                "contact_pos": np.stack([r.position for r in readings]),
-                "direction": np.stack([r.direction for r in readings]),
-                "penetration": np.array([r.penetration for r in readings]),
-                "depth": np.array([r.depth for r in readings]),
-                "simulated": np.array([r.simulated for r in readings]),
+                **reading_record(readings),
                 "patch_points": np.array([len(r.patch) for r in readings]),
-                "tactile": np.stack([r.image for r in readings]).astype(np.float32),
                 "frame": self.frame(),
             }
         )

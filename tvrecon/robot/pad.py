@@ -27,6 +27,7 @@ import torch.nn.functional as F
 import trimesh
 
 __all__ = [
+    "reading_record",
     "ContactPoint",
     "FingerReading",
     "LazySimulator",
@@ -544,3 +545,22 @@ def sense_pads(pads: Sequence[PadSensor], refresh: bool = False) -> list[FingerR
                 patch = cp.points[cp.mask].double().numpy()
             f._store(measured[i][0], job, img.astype(np.float32), ff.astype(np.float32), patch)
     return [m[0] for m in measured]
+
+
+def reading_record(readings: Sequence[FingerReading]) -> dict[str, np.ndarray]:
+    """The per-frame log entries of the pads' readings, one row per pad (what both pick-and-place demos store).
+
+    Returns contact (F,) bool, force (F,), force_vec (F, 3), contact_pos (F, 3), direction (F, 3), penetration (F,),
+    depth (F,), simulated (F,) bool and tactile (F, 3, H, W) float32.
+    """
+    return {
+        "contact": np.array([r.contact for r in readings]),
+        "force": np.array([r.force for r in readings]),
+        "force_vec": np.stack([r.force_vec for r in readings]),
+        "contact_pos": np.stack([r.position for r in readings]),
+        "direction": np.stack([r.direction for r in readings]),
+        "penetration": np.array([r.penetration for r in readings]),
+        "depth": np.array([r.depth for r in readings]),
+        "simulated": np.array([r.simulated for r in readings]),
+        "tactile": np.stack([r.image for r in readings]).astype(np.float32),
+    }
