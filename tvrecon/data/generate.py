@@ -115,6 +115,8 @@ def _init_worker(dataset: GeneratedDataset) -> None:
     # Ctrl-C reaches the whole process group: the main process alone answers it (one line, exit 130) and stops the
     # workers, instead of each worker printing its own KeyboardInterrupt traceback (ignored from their start too)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):  # started with SIGINT blocked (see _pool_generate): now ignored, unblock
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     torch.set_num_threads(1)
     _DATASET = dataset
 
@@ -140,14 +142,21 @@ def _pool_generate(dataset: GeneratedDataset, todo: list[int], workers: int, des
     procs: list[mp.process.BaseProcess] = []
     clean = False
     try:
-        # the workers start with SIGINT ignored (inherited through exec), so a Ctrl-C while they import is not a
-        # traceback per worker: the main process alone answers it
+        # the workers start with SIGINT blocked (the mask is inherited through exec), so a Ctrl-C while they import
+        # is not a traceback per worker: the main process alone answers it. Blocked, not ignored, in the main process
+        # too: a Ctrl-C that arrives while the workers are spawned is delivered when the mask is lifted, not lost (with
+        # SIG_IGN here a loaded machine lost it, and the run went on to exit 0)
         in_main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
+        if not hasattr(signal, "pthread_sigmask"):  # no signal masks on this platform: ignore it while spawning
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if in_main else None
+        elif in_main:
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             futures = [pool.submit(_work, i) for i in todo]
         finally:
-            if in_main:
+            if in_main and hasattr(signal, "pthread_sigmask"):
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            elif in_main:
                 signal.signal(signal.SIGINT, previous)
         procs = list(pool._processes.values())  # all spawned by now; kept to name the signal of a dead one
         for fut in as_completed(futures):
