@@ -73,6 +73,13 @@ def test_a_worker_killed_by_sigkill_stops_the_pool_naming_the_signal(tmp_path: P
     assert all(not Path(f"/proc/{w}").exists() or _zombie(w) for w in workers)  # no worker outlives the run
 
 
+def _terminal_sigint() -> None:
+    """In the child before exec: SIGINT at its default and unblocked, as a foreground command of a terminal has it (in
+    the whole suite the pytest process was seen to hand its children SIGINT ignored, and the Ctrl-C never arrived)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _zombie(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().split(") ")[1].startswith("Z")
@@ -87,7 +94,14 @@ def test_ctrl_c_with_workers_exits_130_with_the_resume_hint_in_one_line(tmp_path
     cmd = [sys.executable, "-m", "tvrecon.data.generate", *ARGS, f"cache_dir={tmp_path}", "workers=2", "splits=train"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen(
-        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+        cmd,
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=_terminal_sigint,  # as a terminal starts it, whatever an earlier test left in this process
     )
     try:
         deadline = time.monotonic() + 120
