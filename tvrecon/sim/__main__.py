@@ -24,6 +24,7 @@ import torch
 import trimesh
 
 from tvrecon.cli_errors import call_cli
+from tvrecon.geometry import read_mesh_file
 from tvrecon.sim.particle_contact import CONTACT_MODES
 from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading
 from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, save_tactile_png
@@ -68,13 +69,7 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
     path = Path(name)
     if not path.is_file():
         raise ValueError(f"--shape must be one of {BUILTIN_SHAPES} or an existing mesh file, got {name!r}")
-    # trimesh's processing silently drops NaN vertices (leaving a hole): check the raw file like the API does
-    raw = _read_mesh(path, process=False)
-    if isinstance(raw, trimesh.Trimesh) and not np.isfinite(np.asarray(raw.vertices)).all():
-        raise ValueError(f"{path} has NaN or infinite vertex coordinates: clean the mesh (e.g. drop those vertices)")
-    mesh = _read_mesh(path, process=True)
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"{path} holds no triangles")
+    mesh = read_mesh_file(path, what="--shape file")  # the one mesh loader: unreadable, NaN, no triangles
     extent = float(np.ptp(mesh.bounds, axis=0).max())
     if not extent > 0 or not float(mesh.area) > 0:
         raise ValueError(
@@ -92,17 +87,6 @@ def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
             flush=True,
         )
     return mesh
-
-
-def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh | trimesh.Scene:
-    """``trimesh.load`` of a mesh file; any reader failure (garbage bytes, wrong format) is a ValueError naming it."""
-    try:
-        return trimesh.load(path, force="mesh", process=process)
-    except Exception as err:  # trimesh's readers fail in many ways (e.g. an ImportError of an optional decoder)
-        raise ValueError(
-            f"cannot read mesh {path} ({type(err).__name__}: {err}): is it a valid mesh file "
-            f"(.obj, .stl, .ply, .glb, .off)? Re-export it from a mesh tool"
-        ) from err
 
 
 def save_reading_npz(reading: TactileReading, path: str | Path) -> Path:
