@@ -26,16 +26,16 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
-from tvrecon.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
-from tvrecon.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
-from tvrecon.run import (  # noqa: E402
+from tvrecon.report.run import (  # noqa: E402
     check_model_matches_data,
     exit_on_sigterm,
     fix_test_touches,
     report_tables,
     save_results,
 )
-from tvrecon.tables import data_protocol  # noqa: E402
+from tvrecon.report.tables import data_protocol  # noqa: E402
+from tvrecon.utils.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
+from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -154,7 +154,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     warning; a run whose checkpoints are all unreadable, or whose folder has no ``.hydra/config.yaml``, is skipped
     with a warning and the tables of the other runs are still written (the skipped files are returned under
     ``"skipped"``); a single ``ckpt_path`` that cannot be read raises
-    :class:`~tvrecon.checkpoint.CorruptCheckpointError` naming the file.
+    :class:`~tvrecon.utils.checkpoint.CorruptCheckpointError` naming the file.
     """
     if cfg.get("torch_threads"):
         torch.set_num_threads(int(cfg.torch_threads))

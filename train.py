@@ -28,9 +28,7 @@ import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-from tvrecon.checkpoint import check_checkpoint  # noqa: E402
-from tvrecon.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
-from tvrecon.run import (  # noqa: E402  (also importable from train)
+from tvrecon.report.run import (  # noqa: E402  (also importable from train)
     check_model_matches_data,
     exit_on_sigterm,
     fix_test_touches,
@@ -38,8 +36,10 @@ from tvrecon.run import (  # noqa: E402  (also importable from train)
     report_tables,
     save_results,
 )
-from tvrecon.tables import data_protocol  # noqa: E402
-from tvrecon.viz import plot_loss_curves  # noqa: E402
+from tvrecon.report.tables import data_protocol  # noqa: E402
+from tvrecon.report.viz import plot_loss_curves  # noqa: E402
+from tvrecon.utils.checkpoint import check_checkpoint  # noqa: E402
+from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
 
 __all__ = [
     "check_training_length",

@@ -32,7 +32,9 @@ from tvrecon.data.shapes import make_shape  # noqa: E402
 from tvrecon.robot.finger import TactileFinger  # noqa: E402
 from tvrecon.robot.mujoco_scene import FINGER_HALF, _fmt  # noqa: E402
 from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import FingerReading, LazySimulator, PadConfig  # noqa: E402
+from tvrecon.robot.pad import LazySimulator
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pad_reading import FingerReading
 from tvrecon.robot.scene import collision_shape_for_mesh, prepare_object_mesh  # noqa: E402
 
 

@@ -30,7 +30,8 @@ import torch  # noqa: E402
 from tvrecon.data.shapes import make_shape  # noqa: E402
 from tvrecon.robot.mujoco_scene import MujocoScene  # noqa: E402
 from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import LazySimulator, PadConfig, sense_pads  # noqa: E402
+from tvrecon.robot.pad import LazySimulator, sense_pads
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 
 
 def _time(fn, repeats: int) -> float:

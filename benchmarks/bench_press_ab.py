@@ -34,8 +34,9 @@ sys.path.insert(0, str(ROOT))
 
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
 from tvrecon.data.touches import sample_touches  # noqa: E402
-from tvrecon.sim.particle_contact import CONTACT_MODES  # noqa: E402
-from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
+from tvrecon.sim.mpm.state import CONTACT_MODES  # noqa: E402
+from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 
 def import_old(rev: str, where: Path):

@@ -30,9 +30,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
 from tvrecon.data.touches import sample_touches  # noqa: E402
 from tvrecon.sim import mpm  # noqa: E402
-from tvrecon.sim.colliders import MeshCollider, collide_grid  # noqa: E402
+from tvrecon.sim.bodies.colliders import MeshCollider
+from tvrecon.sim.bodies.grid_contact import collide_grid  # noqa: E402
 from tvrecon.sim.mpm import MLSMPM  # noqa: E402
-from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
+from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 FIELDS = ("image", "position", "direction", "steps", "depth", "chamfer", "force", "contact", "force_field")
 

@@ -3,7 +3,7 @@
 Scene: pad of 48 x 48 x 12 particles at half-cell spacing, 128 cells across the unit domain, a sphere collider under
 the pad, the pad's back layer driven down by the hand (alpha = 0 there, 1 elsewhere: the "clamped" profile), 200
 steps with the CFL time step. Runs ``tvrecon.sim.mpm.MLSMPM`` through its public contract and
-``tvrecon.sim.reference`` (dense 128^3 grid, index_add_, torch.linalg.svd) in the same process, prints
+``tvrecon.sim.mpm.reference`` (dense 128^3 grid, index_add_, torch.linalg.svd) in the same process, prints
 particle-steps/s of both, their ratio, peak memory (max RSS) and the max abs difference of final positions.
 
     .venv/bin/python benchmarks/bench_sim.py [--steps 200] [--repeats 2] [--threads N] [--skip-reference]
@@ -26,9 +26,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tvrecon.sim.colliders import SphereCollider  # noqa: E402
+from tvrecon.sim.bodies.colliders import SphereCollider  # noqa: E402
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
-from tvrecon.sim.reference import ReferenceMPM  # noqa: E402
+from tvrecon.sim.mpm.reference import ReferenceMPM  # noqa: E402
 
 N_GRID = 128
 SPHERE_CENTER = (0.5, 0.5, 0.3)

@@ -41,11 +41,10 @@ import trimesh
 from bench_physics import _corr, scaled_pad
 
 from tvrecon.data.shapes import available_classes, make_shape
-from tvrecon.sim import particle_contact
-from tvrecon.sim.mpm import MPMConfig, cfl_dt
+from tvrecon.sim.mpm import MPMConfig, cfl_dt, particle_contact
 from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.press.config import TERMINAL_MEASURES
 from tvrecon.sim.sensor import SensorConfig
-from tvrecon.sim.stop_rules import TERMINAL_MEASURES
 
 #: ``--rule force`` default: normal contact force at the stop, domain units (see the module docstring)
 FORCE = 0.03

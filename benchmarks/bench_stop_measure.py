@@ -34,8 +34,8 @@ from bench_stop_depth import shape_mesh
 
 from tvrecon.data.shapes import available_classes
 from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.press.stop_rules import terminal_chamfer, threshold_cells
 from tvrecon.sim.sensor import pad_lattice
-from tvrecon.sim.stop_rules import terminal_chamfer, threshold_cells
 
 
 def measures(frames: torch.Tensor, rest: torch.Tensor, lattice: tuple[int, int, float]) -> torch.Tensor:

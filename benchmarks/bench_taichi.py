@@ -41,9 +41,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_sim import N_GRID, SPHERE_CENTER, SPHERE_RADIUS, press_scene  # noqa: E402
 
-from tvrecon.sim.colliders import SphereCollider  # noqa: E402
-from tvrecon.sim.materials import lame_parameters  # noqa: E402
+from tvrecon.sim.bodies.colliders import SphereCollider  # noqa: E402
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
+from tvrecon.sim.mpm.materials import lame_parameters  # noqa: E402
 
 
 @ti.data_oriented

@@ -5,7 +5,7 @@ forward + backward + AdamW step on a synthetic batch with the ``small`` preset's
 T = 10 touches of 64 px tactile maps, 2,048 ground-truth points; sphere objects at the origin, camera at distance 2
 on -z), twice in the same process:
 
-* ours: ``tvrecon.models.gcn.GraphConv`` (neighbour sums as one sparse CSR matrix product per conv) and
+* ours: ``tvrecon.models.components.gcn.GraphConv`` (neighbour sums as one sparse CSR matrix product per conv) and
   ``tvrecon.losses.chamfer.nearest_neighbors`` (argmin of ``|y|^2 - 2 x.y``, one batched matmul);
 * reference: the same network and losses with ``benchmarks/reference_train.py`` swapped in for both (gather both
   ends of every edge and ``index_add``; ``torch.cdist(...).square()``).
@@ -40,8 +40,9 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 from reference_train import cdist_nearest_neighbors, index_add_forward  # noqa: E402
 
 import tvrecon.losses.chamfer as chamfer_module  # noqa: E402
-from tvrecon.models.gcn import GraphConv  # noqa: E402
-from tvrecon.models.lit_recon import ReconstructionModule, gt_to_camera, keep_first_touches  # noqa: E402
+from tvrecon.models.components.gcn import GraphConv  # noqa: E402
+from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
+from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches  # noqa: E402
 
 
 def synthetic_batch(B: int = 8, T: int = 10, H: int = 128, h: int = 64, N: int = 2048, seed: int = 0) -> dict:

@@ -1,7 +1,8 @@
 """Reference versions of the two hot spots of a reconstruction training step, for ``bench_train_step.py``.
 
 * ``index_add_forward``: ``GraphConv`` with the neighbour sum ``agg_{v' in N(v)} W1 x_v'`` as a gather of both ends
-  of every edge and an ``index_add`` (what ``tvrecon.models.gcn.GraphConv`` did before its sparse neighbour matrix).
+  of every edge and an ``index_add`` (what ``tvrecon.models.components.gcn.GraphConv`` did before its sparse neighbour
+  matrix).
 * ``cdist_nearest_neighbors``: the chamfer's nearest-neighbour search with ``torch.cdist(...).square()`` (what
   ``tvrecon.losses.chamfer.nearest_neighbors`` did before the expanded-square search).
 
@@ -13,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from tvrecon.models.gcn import GraphConv
+from tvrecon.models.components.gcn import GraphConv
 
 
 def index_add_forward(conv: GraphConv, x: Tensor, edges: Tensor, neighbours: Tensor | None = None) -> Tensor:

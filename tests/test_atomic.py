@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pytest  # noqa: E402
 
-from tvrecon.atomic import atomic_open, atomic_savefig, atomic_write_bytes, atomic_write_text  # noqa: E402
+from tvrecon.utils.atomic import atomic_open, atomic_savefig, atomic_write_bytes, atomic_write_text  # noqa: E402
 
 
 def test_write_replaces_and_keeps_usual_mode(tmp_path: Path) -> None:

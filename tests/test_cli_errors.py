@@ -1,6 +1,6 @@
 """Issue 28 item 1: every command fails in one stderr line with exit 2 (bad input), 1 (failed run), 130 (Ctrl-C).
 
-The shared mechanism (``tvrecon.cli_errors``) and the argparse-style commands; train.py / eval.py are in
+The shared mechanism (``tvrecon.utils.cli_errors``) and the argparse-style commands; train.py / eval.py are in
 ``tests/train/test_cli_faults.py``, the robot in ``tests/robot/test_pick_place_inputs.py``.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tvrecon.cli_errors import RESUME_HINT, call_cli, cli_errors, exit_code, one_line
+from tvrecon.utils.cli_errors import RESUME_HINT, call_cli, cli_errors, exit_code, one_line
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -133,7 +133,7 @@ def test_press_cli_bad_threads_is_one_line(tmp_path: Path, capsys) -> None:
 
 def test_preview_and_tables_are_one_line(tmp_path: Path, capsys) -> None:
     from tvrecon.data.preview import main as preview
-    from tvrecon.tables import main as tables
+    from tvrecon.report.tables import main as tables
 
     assert call_cli(preview, ["--out", str(tmp_path / "p.png"), "--shape", "nope"], prog="preview") == 2
     assert "unknown shape" in _one_error_line(capsys.readouterr().err, "preview")

@@ -2,7 +2,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from tvrecon.config_utils import check_known_keys, coerce_config, field_names
+from tvrecon.utils.config_utils import check_known_keys, coerce_config, field_names
 
 
 @dataclass

@@ -3,8 +3,8 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.geometry import check_mesh, perpendicular_basis, rotate_to_camera, world_to_camera
 from tvrecon.sim.sensor import sensor_frame
+from tvrecon.utils.geometry import check_mesh, perpendicular_basis, rotate_to_camera, world_to_camera
 
 
 def test_check_mesh_names_what_is_wrong() -> None:

@@ -164,7 +164,7 @@ def test_disabled_cache_always_generates(tmp_path: Path):
 
 def test_unreadable_entry_is_reported_not_deleted_and_entries_get_umask_mode(tmp_path, monkeypatch) -> None:
     """Issue 14 case 4: a permission error was treated as corruption (file deleted); entries were written 0600."""
-    from tvrecon.atomic import default_file_mode
+    from tvrecon.utils.atomic import default_file_mode
 
     cache = SampleCache(tmp_path)
     path = cache.save("a" * 64, {"x": np.zeros(3)})

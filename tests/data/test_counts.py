@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from tvrecon.cli_errors import call_cli
 from tvrecon.data.datamodule import ReconstructionDataModule
 from tvrecon.data.generate import main
+from tvrecon.utils.cli_errors import call_cli
 
 PROG = "python -m tvrecon.data.generate"
 

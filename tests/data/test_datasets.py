@@ -10,10 +10,11 @@ import torch
 import trimesh
 
 from tvrecon.data.cache import cache_key
-from tvrecon.data.datasets import ReconstructionDataset, TactileClassificationDataset, coerce_config
+from tvrecon.data.datasets import ReconstructionDataset, TactileClassificationDataset
 from tvrecon.data.shapes import ObjectLibrary
 from tvrecon.data.touches import Touches
-from tvrecon.sim.press import SensorConfig
+from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.utils.config_utils import coerce_config
 
 # tiny simulation: 8x8 pad, 3 layers, 32^3 grid, short fast presses, one press strength
 PRESS = {"n_grid": 32, "max_depth": 1.5, "gap": 0.5, "speed_fraction": 0.2}
@@ -268,8 +269,8 @@ def test_reconstruction_sample_exposes_contact_patches(recon_cache: Path):
 def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
     """Issue 14 case 14: `sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
     from tvrecon.data.cache import cache_key
-    from tvrecon.data.datasets import coerce_config
     from tvrecon.sim.sensor import SensorConfig
+    from tvrecon.utils.config_utils import coerce_config
 
     a = coerce_config(SensorConfig, {"E": 3})
     b = coerce_config(SensorConfig, {"E": 3.0})

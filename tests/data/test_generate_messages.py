@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from tvrecon.cli_errors import call_cli
 from tvrecon.data.generate import main
 from tvrecon.data.presets import compose_preset
+from tvrecon.utils.cli_errors import call_cli
 
 
 def test_mistyped_key_lists_the_keys_of_its_parent(tmp_path, capsys) -> None:

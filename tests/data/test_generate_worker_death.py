@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tvrecon.cli_errors import RESUME_HINT
+from tvrecon.utils.cli_errors import RESUME_HINT
 
 ROOT = Path(__file__).resolve().parents[2]
 ARGS = [

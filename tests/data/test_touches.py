@@ -7,19 +7,18 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.render import sample_camera
 from tvrecon.data.touches import (
     ConeTouchPolicy,
     Touches,
     cone_directions,
     make_touch_policy,
-    pad_footprint,
-    pad_reachable,
     resize_tactile,
     sample_touches,
     simulate_touches,
     visible_points,
 )
+from tvrecon.data.views import sample_camera
+from tvrecon.sim.press.placement import pad_footprint, pad_reachable
 
 
 @pytest.fixture(scope="module")
@@ -236,7 +235,7 @@ def test_sim_aware_sampling_is_accepted_by_the_simulator(one_thread) -> None:
 
     gear = make_shape("gear", seed=0)
     sim = EIPSimulator(SensorConfig(resolution=(32, 32)), PressConfig(n_grid=64))
-    width, clearance = pad_footprint(sim)
+    width, clearance = pad_footprint(sim.sensor, sim.cfg)
     assert width == pytest.approx(2 * np.hypot(7.75, 7.75) / 64) and clearance > 0
     t = sample_touches(gear, 4, seed=0, policy=ConeTouchPolicy(cone_deg=10.0), sim=sim)
     for p, d in zip(t.positions, t.directions):
@@ -249,8 +248,9 @@ def test_sim_aware_sampling_is_accepted_by_the_simulator(one_thread) -> None:
 def test_visible_touches_land_on_the_rendered_object() -> None:
     """Integration with the object library and the renderer: visible touches project onto object pixels whose
     rendered depth matches the touch's camera-frame depth."""
-    from tvrecon.data.render import project_points, render_view, world_to_camera
     from tvrecon.data.shapes import make_shape
+    from tvrecon.data.views import project_points, render_view
+    from tvrecon.utils.geometry import world_to_camera
 
     mug = make_shape("mug", seed=3)
     cam = sample_camera(2, image_size=160)
@@ -299,10 +299,3 @@ def test_make_touch_policy_and_cache_spec(torus: trimesh.Trimesh) -> None:
         make_touch_policy({"_target_": "tvrecon.data.touches.NoSuchPolicy"})
     with pytest.raises(ValueError, match="is not a TouchPolicy dataclass"):
         make_touch_policy({"_target_": "tvrecon.data.touches.Touches"})
-
-
-def test_pad_placement_helpers_live_with_the_simulator_placement() -> None:
-    """pad_footprint / pad_reachable moved to tvrecon.sim.placement (one clearance for the rays and the sampler)."""
-    from tvrecon.sim import placement
-
-    assert pad_footprint is placement.pad_footprint and pad_reachable is placement.pad_reachable

@@ -7,7 +7,8 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.render import Camera, _look_at_rotation, project_points, render_view, sample_camera, world_to_camera
+from tvrecon.data.views import Camera, _look_at_rotation, project_points, render_view, sample_camera
+from tvrecon.utils.geometry import world_to_camera
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from tvrecon.losses.mesh import (
     move_loss,
     normal_loss,
 )
-from tvrecon.models.ellipsoid import mesh_edges
+from tvrecon.models.components.ellipsoid import mesh_edges
 
 # a tetrahedron
 FACES = torch.tensor([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])

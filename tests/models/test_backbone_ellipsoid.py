@@ -6,10 +6,16 @@ import pytest
 import torch
 import trimesh
 
-import tvrecon.models.backbone as backbone_mod
-from tvrecon.models.backbone import ResNet18Backbone, cached_resnet18_weights_path, load_resnet18
-from tvrecon.models.classifier import TactileClassifier
-from tvrecon.models.ellipsoid import EllipsoidTemplate, mesh_edges, unpool_faces, unpool_features, uv_ellipsoid
+import tvrecon.models.components.backbone as backbone_mod
+from tvrecon.models.components.backbone import ResNet18Backbone, cached_resnet18_weights_path, load_resnet18
+from tvrecon.models.components.classifier import TactileClassifier
+from tvrecon.models.components.ellipsoid import (
+    EllipsoidTemplate,
+    mesh_edges,
+    unpool_faces,
+    unpool_features,
+    uv_ellipsoid,
+)
 
 
 def test_backbone_stage_shapes_and_touch_folding() -> None:

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from tvrecon.models.classifier import TactileClassifier
-from tvrecon.models.touch_set import TouchSetClassifier
+from tvrecon.models.components.classifier import TactileClassifier
+from tvrecon.models.components.touch_set import TouchSetClassifier
 
 
 def test_shapes_padding_and_masking() -> None:
@@ -34,7 +34,8 @@ def test_bad_input_raises(model: type) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("model", [TactileClassifier, TouchSetClassifier])
 def test_overfits_tiny_batch(model: type) -> None:
-    """The paper's stacked classifier and the touch-set classifier (tvrecon.models.touch_set) both fit 8 samples."""
+    """The paper's stacked classifier and the touch-set classifier (tvrecon.models.components.touch_set) both fit 8
+    samples."""
     torch.manual_seed(0)
     clf = model(num_classes=4, num_touches=2)
     x = torch.rand(8, 2, 3, 16, 16)

@@ -4,8 +4,8 @@ gradient flow and a tiny-batch overfit that needs the patches' geometry."""
 import pytest
 import torch
 
-from tvrecon.models.contact_cloud import ContactCloudClassifier
-from tvrecon.models.set_pool import masked_max_mean
+from tvrecon.models.components.contact_cloud import ContactCloudClassifier
+from tvrecon.models.components.set_pool import masked_max_mean
 
 
 def _touches(B: int = 2, N: int = 3, Q: int = 16, seed: int = 0) -> tuple[torch.Tensor, ...]:

@@ -3,8 +3,14 @@
 import pytest
 import torch
 
-from tvrecon.models.fusion import AggBlock, DirectionFFN, TactileVisualFusion, locate_touches, place_embeddings
-from tvrecon.models.projection import pixel_to_feature, project
+from tvrecon.models.components.fusion import (
+    AggBlock,
+    DirectionFFN,
+    TactileVisualFusion,
+    locate_touches,
+    place_embeddings,
+)
+from tvrecon.models.components.projection import pixel_to_feature, project
 
 H = W = 32  # image
 h = w = 8  # feature map (stride 4)

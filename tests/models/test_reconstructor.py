@@ -4,9 +4,9 @@ import pytest
 import torch
 
 from tvrecon.losses.mesh import mesh_loss_terms
-from tvrecon.models.fusion import TactileVisualFusion
-from tvrecon.models.gcn import MeshDeformer
-from tvrecon.models.reconstructor import TactileVisualReconstructor
+from tvrecon.models.components.fusion import TactileVisualFusion
+from tvrecon.models.components.gcn import MeshDeformer
+from tvrecon.models.components.reconstructor import TactileVisualReconstructor
 
 H = 32
 

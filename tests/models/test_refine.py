@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from tvrecon.losses.metrics import chamfer_metric
-from tvrecon.models.ellipsoid import EllipsoidTemplate
+from tvrecon.models.components.ellipsoid import EllipsoidTemplate
 from tvrecon.models.refine import refine_to_patches
 
 

@@ -9,8 +9,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from tvrecon.models.backbone import ResNet18Backbone
-from tvrecon.models.touch_geometry import (
+from tvrecon.models.components.backbone import ResNet18Backbone
+from tvrecon.models.components.touch_geometry import (
     TouchGeometryDeformer,
     TouchGeometryReconstructor,
     TouchPoints,

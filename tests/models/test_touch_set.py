@@ -4,7 +4,7 @@ test_classifier.py, beside the paper's classifier)."""
 import pytest
 import torch
 
-from tvrecon.models.touch_set import TouchSetClassifier
+from tvrecon.models.components.touch_set import TouchSetClassifier
 
 
 def test_shapes_order_invariance_and_masking() -> None:

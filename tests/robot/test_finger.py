@@ -5,7 +5,8 @@ import pybullet as p
 import pytest
 import trimesh
 
-from tvrecon.robot.finger import PadConfig, TactileFinger
+from tvrecon.robot.finger import TactileFinger
+from tvrecon.robot.pad_config import PadConfig
 
 pytest.importorskip("tvrecon.sim.press")
 

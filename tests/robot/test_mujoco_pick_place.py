@@ -16,7 +16,7 @@ from tvrecon.robot.mujoco_pick_place import (  # noqa: E402
     run_mujoco_pick_place,
 )
 from tvrecon.robot.mujoco_scene import MAX_OPENING, MujocoScene, look_at_xyaxes  # noqa: E402
-from tvrecon.robot.pad import PadConfig  # noqa: E402
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 
 
 def test_the_scene_rests_the_object_on_the_table_with_the_gripper_open() -> None:

@@ -9,8 +9,9 @@ import trimesh
 os.environ.setdefault("MUJOCO_GL", "egl")  # mujoco reads it once, at import: keep later rendering tests headless
 mujoco = pytest.importorskip("mujoco")
 
-from tvrecon.robot.mujoco_sensor import TactileSensor, geom_mesh, sense_pads  # noqa: E402
-from tvrecon.robot.pad import PadConfig  # noqa: E402
+from tvrecon.robot.mujoco_sensor import TactileSensor, geom_mesh  # noqa: E402
+from tvrecon.robot.pad import sense_pads  # noqa: E402
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 
 # a free box (top face at z = 0.01) between two mocap pads; no gravity, so the poses stay as set
 XML = """
@@ -122,7 +123,7 @@ def test_a_body_pad_and_a_preset() -> None:
     model = mujoco.MjModel.from_xml_string(XML)
     data = mujoco.MjData(model)
     s = TactileSensor(model, data, body="top", pad="digit", normal_axis=(0, 0, -1))
-    from tvrecon.sim.sensor_presets import sensor_config
+    from tvrecon.sim.sensor.presets import sensor_config
 
     want = sensor_config("digit", 64)
     assert s.pad.resolution == want.resolution and s.pad.layers == want.layers and s.pad.nu == want.nu

@@ -8,7 +8,9 @@ import trimesh
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from tvrecon.robot.pick_place import PHASES, PickPlaceConfig, load_object_mesh, run_pick_place
+from tvrecon.robot.controller import PHASES
+from tvrecon.robot.pick_place import load_object_mesh, run_pick_place
+from tvrecon.robot.pick_place_config import PickPlaceConfig
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
 

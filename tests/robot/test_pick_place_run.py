@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from tvrecon.data.shapes import make_shape
-from tvrecon.robot.finger import PadConfig
-from tvrecon.robot.pick_place import PHASES, PickPlaceConfig, run_pick_place
+from tvrecon.robot.controller import PHASES
+from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pick_place import run_pick_place
+from tvrecon.robot.pick_place_config import PickPlaceConfig
 from tvrecon.robot.scene import SceneConfig
 
 pytest.importorskip("tvrecon.sim.press")

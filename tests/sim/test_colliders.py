@@ -5,7 +5,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.sim.colliders import Collider, MeshCollider, PlaneCollider, SphereCollider
+from tvrecon.sim.bodies.colliders import Collider, MeshCollider, PlaneCollider, SphereCollider
 
 DX = 1.0 / 128
 REGION = (

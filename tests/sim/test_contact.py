@@ -1,4 +1,4 @@
-"""The contact patch: a touch mapped back to 3D world points (tvrecon.sim.contact)."""
+"""The contact patch: a touch mapped back to 3D world points (tvrecon.sim.sensor.patch)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,10 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.sim.contact import contact_patch, reading_patch
 from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.press.reading import reading_patch
 from tvrecon.sim.sensor import SensorConfig
+from tvrecon.sim.sensor.patch import contact_patch
 
 N_GRID = 64
 

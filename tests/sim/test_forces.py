@@ -7,7 +7,7 @@ import torch
 import trimesh
 
 from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig
-from tvrecon.sim.forces import column_force_field, field_total, normal_shear
+from tvrecon.sim.sensor.forces import column_force_field, field_total, normal_shear
 
 SPHERE = trimesh.creation.icosphere(subdivisions=3, radius=0.1)  # 3.2 cells: the contact covers part of the pad
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tvrecon.config_utils import check_whole
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import SensorConfig
+from tvrecon.utils.config_utils import check_whole
 
 
 @pytest.mark.parametrize(

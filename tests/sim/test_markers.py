@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tvrecon.sim.markers import marker_displacements, marker_grid, marker_positions, render_markers
+from tvrecon.sim.sensor.markers import marker_displacements, marker_grid, marker_positions, render_markers
 
 
 def test_marker_grid_is_centred_and_inside_the_pad() -> None:

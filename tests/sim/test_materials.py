@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from tvrecon.sim.materials import (
+from tvrecon.sim.mpm.materials import (
     det3,
     fixed_corotated_energy,
     fixed_corotated_kirchhoff,

@@ -4,9 +4,9 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from tvrecon.sim.colliders import clip_to_box
-from tvrecon.sim.mesh_distance import maybe_near, surface_distance
-from tvrecon.sim.voxelize import surface_samples
+from tvrecon.sim.bodies.mesh_distance import maybe_near, surface_distance
+from tvrecon.sim.bodies.mesh_region import clip_to_box
+from tvrecon.sim.bodies.voxelize import surface_samples
 
 
 def _lattice(lo_i: np.ndarray, dims: np.ndarray, dx: float) -> np.ndarray:

@@ -7,7 +7,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from tvrecon.data.shapes.registry import available_classes, make_shape
-from tvrecon.sim.mesh_sign import contains
+from tvrecon.sim.bodies.mesh_sign import contains
 
 
 def _lattice(mesh: trimesh.Trimesh, n: int = 24) -> np.ndarray:

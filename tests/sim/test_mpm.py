@@ -5,10 +5,10 @@ import math
 import pytest
 import torch
 
-from tvrecon.sim.colliders import PlaneCollider, SphereCollider
-from tvrecon.sim.materials import fixed_corotated_stress, lame_parameters
+from tvrecon.sim.bodies.colliders import PlaneCollider, SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
-from tvrecon.sim.reference import ReferenceMPM
+from tvrecon.sim.mpm.materials import fixed_corotated_stress, lame_parameters
+from tvrecon.sim.mpm.reference import ReferenceMPM
 
 
 def make_pad(nx=8, ny=8, nz=4, n_grid=32, center=(0.5, 0.5, 0.5), dtype=torch.float32):
@@ -120,7 +120,7 @@ def run_press(n_steps, dtype=torch.float32, friction=0.0, chunk_size=None):
 
 
 def test_press_pushes_back_and_matches_reference():
-    """Our solver equals the straightforward dense-grid SVD port (tvrecon.sim.reference) to round-off."""
+    """Our solver equals the straightforward dense-grid SVD port (tvrecon.sim.mpm.reference) to round-off."""
     n = 32
     state, solver = run_press(n, chunk_size=100)  # exercises the cache-blocked path (P = 256 particles)
     assert solver.last_force[0, 2] > 0  # the sphere pushes the pad up

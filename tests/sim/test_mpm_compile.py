@@ -11,11 +11,11 @@ import pytest
 import torch
 from test_mpm import make_pad
 
-from tvrecon.sim import mpm_compiled
-from tvrecon.sim.colliders import SphereCollider
+from tvrecon.sim.bodies.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
-from tvrecon.sim.mpm_compiled import node_sums, polar_fixed
-from tvrecon.sim.mpm_grid import shift_nodes
+from tvrecon.sim.mpm.compiled import backend
+from tvrecon.sim.mpm.compiled.kernels import node_sums, polar_fixed
+from tvrecon.sim.mpm.grid import shift_nodes
 
 needs_compiler = pytest.mark.skipif(
     shutil.which("g++") is None and shutil.which("cc") is None, reason="torch.compile on CPU needs a C++ compiler"
@@ -66,7 +66,7 @@ def test_compiled_step_equals_eager(batched):
 
 
 def test_polar_fixed_matches_eager_and_flags_unconverged():
-    from tvrecon.sim.materials import polar_decomposition
+    from tvrecon.sim.mpm.materials import polar_decomposition
 
     F = torch.eye(3) + 0.1 * torch.randn(200, 3, 3)
     stop = (8.0 * torch.finfo(F.dtype).eps) ** 0.5
@@ -81,8 +81,8 @@ def test_compile_failure_falls_back_to_eager(monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("no compiler here")
 
-    monkeypatch.setattr(mpm_compiled, "_KERNELS", mpm_compiled.CompiledKernels())
-    monkeypatch.setattr(mpm_compiled._KERNELS, "_fns", {k: boom for k in mpm_compiled._KERNELS._fns})
+    monkeypatch.setattr(backend, "_KERNELS", backend.CompiledKernels())
+    monkeypatch.setattr(backend._KERNELS, "_fns", {k: boom for k in backend._KERNELS._fns})
     cfg = MPMConfig(n_grid=32)
     comp = MLSMPM(cfg, compile=True)
     assert comp.compiled
@@ -96,8 +96,8 @@ def test_compile_failure_falls_back_to_eager(monkeypatch):
 
 def test_grad_steps_run_eager(monkeypatch):
     """A step that needs autograd takes the eager path (the compiled kernels are never called) and differentiates."""
-    monkeypatch.setattr(mpm_compiled, "_KERNELS", mpm_compiled.CompiledKernels())
-    monkeypatch.setattr(mpm_compiled._KERNELS, "_fns", {})  # any compiled call would raise KeyError
+    monkeypatch.setattr(backend, "_KERNELS", backend.CompiledKernels())
+    monkeypatch.setattr(backend._KERNELS, "_fns", {})  # any compiled call would raise KeyError
     cfg = MPMConfig(n_grid=32, dt=1e-3, E=torch.tensor(3.0, requires_grad=True))
     comp = MLSMPM(cfg, compile=True)
     s, _ = _press(comp, 3)
@@ -126,7 +126,8 @@ def test_compiled_press_images_match_eager():
     image maxima ~1 cell, benchmarks/README.md)."""
     import trimesh
 
-    from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
+    from tvrecon.sim.press import EIPSimulator, PressConfig
+    from tvrecon.sim.sensor.pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor, press = SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=48)
@@ -143,7 +144,7 @@ def test_compiled_press_images_match_eager():
 def test_compiled_particle_force_matches_eager():
     """``last_particle_force`` of a compiled solver (one compiled gather) equals the eager ``share_node_force`` of the
     same step to float32 round-off (another summation order)."""
-    from tvrecon.sim.mpm_grid import share_node_force
+    from tvrecon.sim.mpm.grid import share_node_force
 
     comp = MLSMPM(MPMConfig(n_grid=32), compile=True)
     comp.compiled_chunk_size = 256
@@ -160,8 +161,8 @@ def test_compiled_particle_force_matches_eager():
 def test_grid_collide_matches_eager_grid_update(friction, damping):
     """The compiled grid side (plain function + collider fields) equals the eager grid update and collide_grid:
     two scenes, one with a sphere and one without a collider, Coulomb friction and damping."""
-    from tvrecon.sim.mpm_compiled_grid import ColliderFields, grid_collide
-    from tvrecon.sim.mpm_grid import Stencil
+    from tvrecon.sim.mpm.compiled.grid import ColliderFields, grid_collide
+    from tvrecon.sim.mpm.grid import Stencil
 
     D = [6, 5, 7]
     nb = D[0] * D[1] * D[2]
@@ -190,8 +191,8 @@ def test_grid_collide_matches_eager_grid_update(friction, damping):
 @pytest.mark.parametrize("B", [1, 3])
 def test_stencil_bounds_and_block_index_match_block_layout(B):
     """The compiled path's block bounds and node index (plain functions) give block_layout's lo, lin and D."""
-    from tvrecon.sim.mpm_compiled import block_index, stencil_weights
-    from tvrecon.sim.mpm_grid import block_dims, block_layout
+    from tvrecon.sim.mpm.compiled.kernels import block_index, stencil_weights
+    from tvrecon.sim.mpm.grid import block_dims, block_layout
 
     x = 0.3 + 0.4 * torch.rand(B * 50, 3, generator=torch.Generator().manual_seed(1))
     batch = torch.arange(B).repeat_interleave(50)

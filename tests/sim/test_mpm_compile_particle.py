@@ -1,5 +1,5 @@
 """The opt-in ``torch.compile`` path with particle contact (``MPMConfig(contact="particle")``): the compiled P2G and
-grid update, the eager contact passes (``mpm_fused._particle_contact``), then the compiled G2P, equal to the eager
+grid update, the eager contact passes (``step._particle_contact``), then the compiled G2P, equal to the eager
 step to float32 round-off. Tolerances as in test_mpm_compile.py (grid contact) where the contact does not amplify
 the round-off (see the first test).
 
@@ -10,9 +10,9 @@ import pytest
 import torch
 from test_mpm_compile import _press, needs_compiler
 
-from tvrecon.sim import mpm_compiled, mpm_fused
-from tvrecon.sim.colliders import SphereCollider
+from tvrecon.sim.bodies.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig
+from tvrecon.sim.mpm.compiled import backend, kernels, step
 
 #: the pad's centre 1 cell above the sphere (its bottom layer 0.25 cells): particle contact starts when the particles
 #: reach the surface, within the first few of the 30 steps
@@ -67,15 +67,16 @@ def test_compiled_particle_contact_press_images_match_eager(monkeypatch):
     cells (the stated tolerance of ``compile=True`` readings), force within 1e-5."""
     import trimesh
 
-    from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
+    from tvrecon.sim.press import EIPSimulator, PressConfig
+    from tvrecon.sim.sensor.pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor, press = SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=48, contact="particle")
     pos, d = [0.0, 0.0, 0.3], [0.0, 0.0, -1.0]
     ref = EIPSimulator(sensor, press).press(mesh, pos, d)
     calls = []
-    compiled_contact = mpm_fused._particle_contact
-    monkeypatch.setattr(mpm_fused, "_particle_contact", lambda *a: calls.append(1) or compiled_contact(*a))
+    compiled_contact = step._particle_contact
+    monkeypatch.setattr(step, "_particle_contact", lambda *a: calls.append(1) or compiled_contact(*a))
     new = EIPSimulator(sensor, press, compile=True).press(mesh, pos, d)
     assert len(calls) == new.steps > 0, "every step must take the compiled path"
     assert ref.contact and ref.image.abs().max() > 0.1 and ref.steps == new.steps
@@ -86,16 +87,16 @@ def test_compiled_particle_contact_press_images_match_eager(monkeypatch):
 def test_particle_contact_compile_failure_falls_back_to_eager(monkeypatch):
     """A kernel failing in a particle-contact step after the contact passes ran (G2P) leaves the eager step's result
     and readings, bit for bit, and the solver eager from then on. The kernels run uncompiled here (plain functions)."""
-    from tvrecon.sim.mpm_compiled_grid import grid_collide
+    from tvrecon.sim.mpm.compiled.grid import grid_collide
 
     def g2p_fails(*args):
         raise RuntimeError("no compiler here")
 
-    kernels = mpm_compiled.CompiledKernels()
-    plain = {"stencil": mpm_compiled.stencil_weights, "index": mpm_compiled.block_index, "grid": grid_collide}
-    plain.update(polar=mpm_compiled.polar_fixed, p2g=mpm_compiled.p2g_contrib, g2p=g2p_fails)
-    monkeypatch.setattr(mpm_compiled, "_KERNELS", kernels)
-    monkeypatch.setattr(kernels, "_fns", plain)
+    compiled = backend.CompiledKernels()
+    plain = {"stencil": kernels.stencil_weights, "index": kernels.block_index, "grid": grid_collide}
+    plain.update(polar=kernels.polar_fixed, p2g=kernels.p2g_contrib, g2p=g2p_fails)
+    monkeypatch.setattr(backend, "_KERNELS", compiled)
+    monkeypatch.setattr(compiled, "_fns", plain)
     cfg = MPMConfig(n_grid=32, contact="particle")
     eager = MLSMPM(cfg)
     state, f = _press(eager, 12, lift=LIFT)

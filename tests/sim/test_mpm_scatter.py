@@ -6,10 +6,11 @@ import pytest
 import torch
 from test_mpm_compile import _press, needs_compiler
 
-from tvrecon.sim import mpm_fused, mpm_scatter
 from tvrecon.sim.mpm import MLSMPM, MPMConfig
-from tvrecon.sim.mpm_compiled import node_sums, p2g_contrib, polar_fixed, stencil_weights
-from tvrecon.sim.mpm_grid import block_layout
+from tvrecon.sim.mpm.compiled import scatter as mpm_scatter
+from tvrecon.sim.mpm.compiled import step
+from tvrecon.sim.mpm.compiled.kernels import node_sums, p2g_contrib, polar_fixed, stencil_weights
+from tvrecon.sim.mpm.grid import block_layout
 
 
 @needs_compiler
@@ -67,7 +68,7 @@ def test_compiled_step_with_fused_p2g_equals_eager(one_thread, monkeypatch):
         calls.append(1)
         return mpm_scatter.fused_p2g(*args)
 
-    monkeypatch.setattr(mpm_fused, "fused_p2g", counted)
+    monkeypatch.setattr(step, "fused_p2g", counted)
     cfg = MPMConfig(n_grid=32)
     s_ref, f_ref = _press(MLSMPM(cfg), 30)
     comp = MLSMPM(cfg, compile=True)

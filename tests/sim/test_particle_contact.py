@@ -15,15 +15,14 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from physics_checks import free_slab_impact, loglog_slope, slab_lattice, slab_press
 
 from tvrecon.data.cache import cache_key, canonical_json
-from tvrecon.sim.colliders import PlaneCollider, SphereCollider
+from tvrecon.sim.bodies.colliders import PlaneCollider, SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
-from tvrecon.sim.particle_contact import collide_particles
 from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.press.stop_rules import threshold_cells
 from tvrecon.sim.sensor import SensorConfig
-from tvrecon.sim.stop_rules import threshold_cells
-from tvrecon.sim.validation import free_slab_impact, loglog_slope, slab_lattice, slab_press
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
 # a pad 3 cells thick (the 1.5-cell stencil needs a few cells of layer to bend), sphere R = 6 cells, pressed 1.5 cells
@@ -105,24 +104,6 @@ def test_momentum_change_equals_the_particle_contact_impulse():
     m = free_slab_impact(contact="particle")
     assert m["impulse_rel"] > 0.5  # the sphere stopped the slab (measured 1.58)
     assert m["rel_error"] < 1e-5  # measured 1.7e-7
-
-
-def test_collide_particles_is_differentiable_and_keeps_out():
-    x = torch.tensor([[0.5, 0.5, 0.52], [0.5, 0.5, 0.49], [0.9, 0.9, 0.9]], dtype=torch.float64)
-    v = torch.tensor([[0.0, 0.0, -5.0], [0.1, 0.0, -1.0], [0.0, 0.0, -1.0]], dtype=torch.float64, requires_grad=True)
-    sphere = SphereCollider([0.5, 0.5, 0.3], 0.2)
-    dt = 0.01
-    v2, force, pf = collide_particles(x, v, torch.ones(3, dtype=torch.float64), [sphere], [slice(None)], dt)
-    v2d = v2.detach()
-    assert float(v2d[0, 2]) == pytest.approx(-0.02 / dt)  # lands on the surface (phi = 0.02) instead of crossing it
-    assert float(v2d[1, 2]) == pytest.approx(0.0) and float(v2d[1, 0]) == pytest.approx(0.1)  # inside: slips only
-    assert float(force[0, 2].detach()) == pytest.approx((5.0 - 2.0 + 1.0) / dt)  # momentum the sphere added, per dt
-    assert torch.equal(v2d[2], v[2].detach())  # far away: untouched
-    assert torch.allclose(force[0], pf.sum(0))
-    v2.sum().backward()
-    assert v.grad is not None and torch.isfinite(v.grad).all()
-    with pytest.raises(ValueError, match=r"\(P, 3\)"):
-        collide_particles(x[:, :2], v, torch.ones(3), [sphere], [slice(None)], dt)
 
 
 def test_autograd_through_a_particle_contact_press():

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from tvrecon.sim.photometric import DEFAULT_LIGHTS, Light, render_rgb, shade, surface_normals
+from tvrecon.sim.sensor.photometric import DEFAULT_LIGHTS, Light, render_rgb, shade, surface_normals
 
 
 def _bump(n: int = 33, height: float = 3.0, sigma: float = 5.0) -> torch.Tensor:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import trimesh
 
-from tvrecon.sim.colliders import MeshCollider
+from tvrecon.sim.bodies.colliders import MeshCollider
 
 
 def _sphere_collider() -> MeshCollider:

@@ -9,9 +9,9 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.sim.press import EIPSimulator, PressConfig, chamfer_eq13, chamfer_reaches, terminal_chamfer
+from tvrecon.sim.press import EIPSimulator, PressConfig, terminal_chamfer
+from tvrecon.sim.press.stop_rules import chamfer_reaches, threshold_cells
 from tvrecon.sim.sensor import SensorConfig, pad_lattice
-from tvrecon.sim.stop_rules import threshold_cells
 
 SPHERE = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
 TOP = [0.0, 0.0, 0.3]
@@ -194,13 +194,6 @@ def test_terminal_chamfer_lattice_matches_kdtree() -> None:
     x = x0 + 0.2 * torch.randn_like(x0)
     assert terminal_chamfer(x, x0, (9, 7, cfg.spacing)) == pytest.approx(terminal_chamfer(x, x0), rel=1e-9)
     assert terminal_chamfer(x0 + 3.0, x0) == pytest.approx(0.0, abs=1e-9)  # translation is removed
-
-
-def test_terminal_chamfer_deprecated_alias() -> None:
-    import tvrecon.sim
-
-    assert chamfer_eq13 is terminal_chamfer
-    assert tvrecon.sim.chamfer_eq13 is tvrecon.sim.terminal_chamfer is terminal_chamfer
 
 
 def _check_gradient_against_finite_differences(press: PressConfig, max_steps: int) -> None:
@@ -467,7 +460,7 @@ def test_golden_grid_contact_press_image_moments() -> None:
 
 
 def test_stop_rules_are_an_ordered_list_and_depth_raises_max_depth_explicitly() -> None:
-    from tvrecon.sim.stop_rules import (
+    from tvrecon.sim.press.stop_rules import (
         DepthRule,
         DisplacementRule,
         ForceRule,

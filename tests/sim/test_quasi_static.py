@@ -1,4 +1,4 @@
-"""Step-and-hold indentation (``slab_press(holds=...)``, :mod:`tvrecon.sim.quasi_static`), issue 15 item 1: the
+"""Step-and-hold indentation (``slab_press(holds=...)``, :mod:`quasi_static`), issue 15 item 1: the
 Hertz exponents read at rest, and the physics of the hold (the damping does not move the equilibrium; during a
 constant-speed press the pad's inertia adds force). Measured numbers in the comments: these scenes, one thread.
 """
@@ -7,9 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from tvrecon.sim.quasi_static import hand_schedule, hold_means, relaxation_steps
-from tvrecon.sim.validation import slab_press
+from physics_checks import slab_press
+from quasi_static import hand_schedule, hold_means, relaxation_steps
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
 # the tiny scene of benchmarks/bench_hertz_static.py: sphere R = 6 cells, pad 3 cells thick, n_grid 32

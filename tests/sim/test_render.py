@@ -10,9 +10,9 @@ import torch
 import trimesh
 from PIL import Image
 
-from tvrecon.sim.reconstruct import pad_surface
-from tvrecon.sim.render import save_ply, save_sequence_png, save_tactile_png
+from tvrecon.sim.plots import save_ply, save_sequence_png, save_tactile_png
 from tvrecon.sim.sensor import SensorConfig, pad_lattice
+from tvrecon.sim.sensor.surface import pad_surface
 
 
 def _bump(H: int = 16, W: int = 20, amp: float = 1.0) -> torch.Tensor:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tvrecon.sim.sensor import SensorConfig, alpha_profile, contact_layer, mass_scale, pad_lattice, sensor_frame
+from tvrecon.sim.sensor import SensorConfig, alpha_profile, pad_lattice, sensor_frame
+from tvrecon.sim.sensor.pad import contact_layer, mass_scale
 
 
 def test_pad_lattice_layout() -> None:

@@ -1,4 +1,4 @@
-"""Sensor presets (tvrecon.sim.sensor_presets): pads that fit the domain, their Hydra blocks, a tiny press each."""
+"""Sensor presets (tvrecon.sim.sensor.presets): pads that fit the domain, their Hydra blocks, a tiny press each."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import yaml
 from tvrecon.sim.__main__ import main
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.sensor import SensorConfig
-from tvrecon.sim.sensor_presets import (
+from tvrecon.sim.sensor.presets import (
     NU_SIM,
     SENSOR_PRESETS,
     pad_fits,

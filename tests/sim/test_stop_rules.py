@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from tvrecon.sim.sensor import SensorConfig, pad_lattice
-from tvrecon.sim.stop_rules import (
+from tvrecon.sim.press.stop_rules import (
     DisplacementRule,
     StopCheck,
     ThresholdRule,
@@ -15,6 +14,7 @@ from tvrecon.sim.stop_rules import (
     terminal_chamfer,
     terminal_displacement,
 )
+from tvrecon.sim.sensor import SensorConfig, pad_lattice
 
 
 def _layers(dtype: torch.dtype) -> tuple[torch.Tensor, tuple[int, int, float], list[torch.Tensor]]:

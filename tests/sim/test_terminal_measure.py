@@ -12,8 +12,9 @@ import pytest
 import trimesh
 
 from tvrecon.data.cache import cache_key, canonical_json
-from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
-from tvrecon.sim.stop_rules import threshold_cells
+from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.press.stop_rules import threshold_cells
+from tvrecon.sim.sensor.pad import SensorConfig
 
 
 def _press(mesh: trimesh.Trimesh, top: float, terminal: str):

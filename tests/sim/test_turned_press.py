@@ -15,7 +15,7 @@ peak at about 0.18 cells of shear and 0.53 cells of normal displacement):
   on big planar faces. The test uses a tolerance of 1e-3 cells.
 - a finely tessellated sphere (icosphere, 0.39-cell edges), off the press axis: max |difference| 0.0096 cells
   (2% of the normal peak). The MPM grid is axis-aligned, but that is not the cause (a coarse icosphere with
-  1.5-cell edges gives 1.6e-4): the collider's distance (:class:`tvrecon.sim.colliders.MeshCollider`) is refined
+  1.5-cell edges gives 1.6e-4): the collider's distance (:class:`tvrecon.sim.bodies.colliders.MeshCollider`) is refined
   on the faces of the 4 nearest surface samples, found through an axis-aligned kd-tree; with faces smaller than
   the sample spacing (dx / 2) the samples at shared vertices tie and the kd-tree picks different faces for the
   turned mesh, so the approximate distance is not exactly turn-equivariant. The test uses 0.03 cells there.

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from tvrecon.sim.voxelize import occupancy_sdf, save_particles_ply, surface_samples, voxelize
+from tvrecon.sim.bodies.voxelize import occupancy_sdf, save_particles_ply, surface_samples, voxelize
 
 
 def test_closed_box_is_solid():

@@ -18,7 +18,7 @@ from conftest import compose_config
 from test_faults import _fake_run
 from test_tables import FULL, VIS
 
-from tvrecon.tables import collect_results, main
+from tvrecon.report.tables import collect_results, main
 
 
 def test_tables_skip_a_truncated_metrics_json_and_print_the_others(
@@ -29,7 +29,7 @@ def test_tables_skip_a_truncated_metrics_json_and_print_the_others(
         (tmp_path / name / "metrics.json").write_text(json.dumps(result))
     (tmp_path / "2_killed").mkdir()
     (tmp_path / "2_killed" / "metrics.json").write_text(json.dumps(FULL)[:40])  # a run killed while writing it
-    with caplog.at_level(logging.WARNING, logger="tvrecon.tables"):
+    with caplog.at_level(logging.WARNING, logger="tvrecon.report.tables"):
         assert [r["name"] for r in collect_results([tmp_path])] == ["full", "visual_only"]
     assert "skipping" in caplog.text and "2_killed" in caplog.text and "not valid JSON" in caplog.text
     assert main([str(tmp_path)]) == 0

@@ -1,4 +1,4 @@
-"""Per-class accuracy table and confusion matrices of the classifiers (tvrecon.cls_report)."""
+"""Per-class accuracy table and confusion matrices of the classifiers (tvrecon.report.cls_report)."""
 
 from pathlib import Path
 
@@ -6,7 +6,7 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from tvrecon.cls_report import (
+from tvrecon.report.cls_report import (
     build_per_class_table,
     confusion_by_touches,
     plot_accuracy_by_touches,
@@ -14,8 +14,8 @@ from tvrecon.cls_report import (
     write_classification_plots,
     write_confusion_plots,
 )
-from tvrecon.run import report_tables
-from tvrecon.tables import build_tables
+from tvrecon.report.run import report_tables
+from tvrecon.report.tables import build_tables
 
 NAMES = ["cube", "gear", "mug"]
 

@@ -11,7 +11,7 @@ import torch
 from conftest import compose_config
 from omegaconf import OmegaConf, open_dict
 
-from tvrecon.checkpoint import CorruptCheckpointError, check_checkpoint
+from tvrecon.utils.checkpoint import CorruptCheckpointError, check_checkpoint
 
 
 def _synthetic_cfg(overrides: list[str], out: Path):

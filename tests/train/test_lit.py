@@ -11,13 +11,14 @@ import torch
 import trimesh
 from synthetic import SyntheticClassificationDataModule, SyntheticReconDataModule
 
-from tvrecon.models.backbone import ResNet18Backbone
-from tvrecon.models.classifier import TactileClassifier
-from tvrecon.models.fusion import TactileVisualFusion
-from tvrecon.models.gcn import MeshDeformer
+from tvrecon.models.components.backbone import ResNet18Backbone
+from tvrecon.models.components.classifier import TactileClassifier
+from tvrecon.models.components.fusion import TactileVisualFusion
+from tvrecon.models.components.gcn import MeshDeformer
+from tvrecon.models.components.reconstructor import TactileVisualReconstructor
 from tvrecon.models.lit_cls import ClassificationModule, other_object_index, select_touches
-from tvrecon.models.lit_recon import ReconstructionModule, gt_to_camera, keep_first_touches
-from tvrecon.models.reconstructor import TactileVisualReconstructor
+from tvrecon.models.lit_recon import ReconstructionModule
+from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches
 
 
 def _net(mode: str = "fusion") -> TactileVisualReconstructor:

@@ -7,7 +7,8 @@ import io
 
 import pytest
 
-from tvrecon.tables import build_table2, build_table3, build_table4, build_tables, format_tables, write_tables
+from tvrecon.report.cls_report import build_table2
+from tvrecon.report.tables import build_table3, build_table4, build_tables, format_tables, write_tables
 
 
 def _recon(name: str, modality: str, modes: dict[str, float], per_class: dict[str, float] | None = None) -> dict:
@@ -131,7 +132,7 @@ def test_bad_results_raise_clear_errors() -> None:
 def test_cli_collects_metrics_of_run_folders(tmp_path, capsys) -> None:
     import json
 
-    from tvrecon.tables import collect_results, main
+    from tvrecon.report.tables import collect_results, main
 
     for i, res in enumerate([FULL, VIS, TAC]):
         run = tmp_path / "sweep" / f"{i}_{res['name']}"
@@ -146,7 +147,7 @@ def test_cli_collects_metrics_of_run_folders(tmp_path, capsys) -> None:
 
 
 def test_cli_errors_name_the_problem(tmp_path, capsys) -> None:
-    from tvrecon.tables import main
+    from tvrecon.report.tables import main
 
     with pytest.raises(SystemExit):
         main([str(tmp_path / "missing")])
@@ -221,7 +222,7 @@ def test_table2_rows_and_captions_name_the_touches_and_the_split(tmp_path) -> No
     run folder from before ``data_protocol`` was recorded gets it from its ``.hydra/config.yaml``."""
     import json
 
-    from tvrecon.tables import collect_results
+    from tvrecon.report.tables import collect_results
 
     sweep = {"touch": "PaperSweepTouchPolicy", "split": "shared_base"}
     results = [

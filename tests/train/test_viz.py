@@ -9,7 +9,8 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.viz import export_obj, plot_loss_curves, read_metrics_csv, render_mesh_comparison
+from tvrecon.models.mesh_figures import export_obj, render_mesh_comparison
+from tvrecon.report.viz import plot_loss_curves, read_metrics_csv
 
 
 def test_loss_curves_from_lightning_csv(tmp_path: Path) -> None:
@@ -52,7 +53,7 @@ def test_renders_close_their_figures(tmp_path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from tvrecon.viz import render_mesh_comparison
+    from tvrecon.models.mesh_figures import render_mesh_comparison
 
     verts = np.array([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0], [0.0, 0.1, 2.0], [0.0, 0.0, 2.1]])
     faces = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
@@ -63,7 +64,7 @@ def test_renders_close_their_figures(tmp_path) -> None:
 
 
 def test_run_comparison_overlays_runs(tmp_path: Path, capsys) -> None:
-    from tvrecon.viz import find_metrics_csv, main, plot_run_comparison
+    from tvrecon.report.viz import find_metrics_csv, main, plot_run_comparison
 
     for name, scale in (("a", 1.0), ("b", 2.0)):
         (tmp_path / name / "csv").mkdir(parents=True)

@@ -30,13 +30,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from tvrecon.atomic import default_file_mode
-from tvrecon.config_utils import omitted_from_key
+from tvrecon.utils.atomic import default_file_mode
+from tvrecon.utils.config_utils import omitted_from_key
 
 log = logging.getLogger(__name__)
 
 #: Bump whenever the code that turns a spec into a sample changes its output; part of every key.
-#: 4: ``PressConfig`` defaults to particle contact and a threshold in 128-grid cells (issue 15 item 1); both fields
+#: 4: ``PressConfig`` defaults to particle contact and a threshold in 128-grid cells; both fields
 #: stay out of the key at their defaults, so without the bump every default touch would differ under its old key.
 #: 5: the paper's touches (``touch_sweep.PaperSweepTouchPolicy``, the presets' new default) and a touch that felt
 #: nothing pressed again by the dataset; old entries are never read as new ones.

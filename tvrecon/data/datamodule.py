@@ -20,15 +20,11 @@ import torch
 from lightning import LightningDataModule
 from torch.utils.data import DataLoader, Dataset
 
-from tvrecon.config_utils import check_whole
 from tvrecon.data.cache_housekeeping import announce_uncached, remove_stale_tmp
-from tvrecon.data.datasets import (
-    EvalDraws,
-    GeneratedDataset,
-    ReconstructionDataset,
-    TactileClassificationDataset,
-)
+from tvrecon.data.datasets import EvalDraws, ReconstructionDataset, TactileClassificationDataset
+from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.shapes import ObjectLibrary
+from tvrecon.utils.config_utils import check_whole
 
 __all__ = ["ReconstructionDataModule", "ClassificationDataModule", "worker_init"]
 

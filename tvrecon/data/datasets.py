@@ -1,7 +1,7 @@
 """The two generated datasets: tactile-visual reconstruction and tactile classification.
 
-Both are :class:`~tvrecon.data.generated.GeneratedDataset` (object indexing, seeds, simulator, per-item cache; read
-its module docstring first). A reconstruction item adds a seeded view rendered with a random camera and GT surface
+Both are :class:`~tvrecon.data.generated_dataset.GeneratedDataset` (object indexing, seeds, simulator, per-item cache;
+read its module docstring first). A reconstruction item adds a seeded view rendered with a random camera and GT surface
 samples.
 
 What is cached (one ``.npz`` per item, see :mod:`tvrecon.data.cache`) is the *raw* generation result: tactile
@@ -28,21 +28,19 @@ import trimesh
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from tvrecon.config_utils import coerce_config
-from tvrecon.data.generated import GeneratedDataset
+from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.pose_augment import turn_about_up
-from tvrecon.data.render import render_view, sample_camera
 from tvrecon.data.tactile_augment import orient_touches
 from tvrecon.data.touch_select import TouchSelector
-from tvrecon.sim.contact import ContactPatch, contact_patch
+from tvrecon.data.views import render_view, sample_camera
+from tvrecon.sim.sensor.patch import ContactPatch, contact_patch
+from tvrecon.utils.config_utils import coerce_config
 
 __all__ = [
     "RenderConfig",
     "EvalDraws",
-    "GeneratedDataset",
     "ReconstructionDataset",
     "TactileClassificationDataset",
-    "coerce_config",
 ]
 
 
@@ -82,7 +80,7 @@ class ReconstructionDataset(GeneratedDataset):
         seeded samples of the GT surface; label int64 (index into ``library.classes``);
         patch_points (max_touches,Hs*Ws,3), patch_normals (max_touches,Hs*Ws,3) float32 world and patch_mask
         (max_touches,Hs*Ws) bool: each touch's contact layer mapped back to 3D
-        (:func:`tvrecon.sim.contact.contact_patch`, derived from the cached raw image, position and direction at
+        (:func:`tvrecon.sim.sensor.patch.contact_patch`, derived from the cached raw image, position and direction at
         the sensor's resolution Hs x Ws; no regeneration), the mask True where the pad was pushed in by more than
         0.1 cell (False on padded touches).
 
@@ -129,7 +127,7 @@ class ReconstructionDataset(GeneratedDataset):
         return spec
 
     def camera(self, index: int):
-        """The seeded :class:`~tvrecon.data.render.Camera` of item ``index``."""
+        """The seeded :class:`~tvrecon.data.views.Camera` of item ``index``."""
         r = self.render
         return sample_camera(self.seeds(index)[1], image_size=r.image_size, distance=r.distance, fov_deg=r.fov_deg)
 
@@ -206,7 +204,7 @@ class ReconstructionDataset(GeneratedDataset):
 
 
 def _contact_patches(dataset: GeneratedDataset, raw: Mapping[str, np.ndarray], sel: np.ndarray) -> ContactPatch:
-    """Contact patches (:func:`tvrecon.sim.contact.contact_patch`) of the cached touches ``sel`` (T,) of an item.
+    """Contact patches (:func:`tvrecon.sim.sensor.patch.contact_patch`) of the cached touches ``sel`` (T,) of an item.
 
     Returns points (T, Hs*Ws, 3) float32, normals (T, Hs*Ws, 3) float32 world, mask (T, Hs*Ws) bool.
     """
@@ -238,7 +236,7 @@ class TactileClassificationDataset(GeneratedDataset):
     directions are left as they are. Needs square tactile images.
 
     ``patches=True`` adds each touch's contact patch, the pad's contact layer mapped back to world points and
-    normals (:func:`tvrecon.sim.contact.contact_patch`, from the raw image at the pad's resolution, so the image
+    normals (:func:`tvrecon.sim.sensor.patch.contact_patch`, from the raw image at the pad's resolution, so the image
     augmentation does not move it). ``rotate_pose=True`` (training draws only) turns the whole touch set, positions,
     directions and patches, by one random angle about the world's up axis per visit
     (:mod:`tvrecon.data.pose_augment`): the object's heading is then unknown to a model that reads touch poses.

@@ -40,11 +40,11 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from tvrecon.cli_errors import RESUME_HINT
 from tvrecon.data.cache import cache_key
 from tvrecon.data.cache_housekeeping import remove_stale_tmp
-from tvrecon.data.datasets import GeneratedDataset
+from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.touch_report import contact_report
+from tvrecon.utils.cli_errors import RESUME_HINT
 
 __all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "parse_shard", "main"]
 
@@ -346,6 +346,6 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
 
 
 if __name__ == "__main__":
-    from tvrecon.cli_errors import run_cli
+    from tvrecon.utils.cli_errors import run_cli
 
     run_cli(main, prog="python -m tvrecon.data.generate", resume=True)  # errors: one line, exit 2/1/130

@@ -1,6 +1,6 @@
-"""Pose augmentation of a touch set: the whole set turned about the world's up axis (beyond the paper, issue 12).
+"""Pose augmentation of a touch set: the whole set turned about the world's up axis (beyond the paper).
 
-Objects stand upright (+z up, :func:`tvrecon.data.render.sample_camera`) but a robot does not know which way an
+Objects stand upright (+z up, :func:`tvrecon.data.views.sample_camera`) but a robot does not know which way an
 object faces. Turning every touch of a sample, its position, press direction and contact patch, by one angle about
 +z gives the same object in another heading: the touches keep their relative geometry and their relation to
 gravity. Training with a random heading per visit (``rotate_pose``) keeps a classifier that reads touch positions

@@ -24,9 +24,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from tvrecon.atomic import atomic_savefig  # noqa: E402
-from tvrecon.data.render import Camera, project_points, render_view, sample_camera  # noqa: E402
 from tvrecon.data.touches import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.views import Camera, project_points, render_view, sample_camera  # noqa: E402
+from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["make_preview", "draw_preview", "save_figure_atomic", "main"]
 
@@ -65,8 +66,7 @@ def draw_preview(
     Returns:
         the matplotlib Figure (caller saves and closes it).
     """
-    if image.ndim != 3 or image.shape[0] != 3:
-        raise ValueError(f"image must have shape (3, H, W), got {tuple(image.shape)}")
+    check_shape(image, "(3, H, W)", "image")
     T = positions.shape[0]
     if positions.shape != (T, 3) or directions.shape != (T, 3) or T < 1:
         raise ValueError(f"positions and directions must have shape (T, 3), T >= 1; got {tuple(positions.shape)}")
@@ -181,8 +181,9 @@ def make_preview(
         the written path.
     """
     from tvrecon.data.shapes import available_classes, make_shape
-    from tvrecon.sim.press import EIPSimulator, PressConfig
-    from tvrecon.sim.sensor import SensorConfig
+    from tvrecon.sim.press.config import PressConfig
+    from tvrecon.sim.press.simulator import EIPSimulator
+    from tvrecon.sim.sensor.pad import SensorConfig
 
     if shape not in available_classes():
         raise ValueError(f"unknown shape {shape!r}; available: {', '.join(available_classes())}")
@@ -235,6 +236,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from tvrecon.cli_errors import run_cli
+    from tvrecon.utils.cli_errors import run_cli
 
     run_cli(main, prog="python -m tvrecon.data.preview")  # errors: one line, exit 2/1/130

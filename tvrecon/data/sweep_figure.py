@@ -24,11 +24,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from hydra.utils import instantiate  # noqa: E402
 
-from tvrecon.atomic import atomic_savefig  # noqa: E402
-from tvrecon.data.generated import GeneratedDataset  # noqa: E402
+from tvrecon.data.generated_dataset import GeneratedDataset  # noqa: E402
 from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.data.render import render_view, sample_camera  # noqa: E402
 from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.views import render_view, sample_camera  # noqa: E402
+from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
 
 __all__ = ["preset_dataset", "sweep_figure", "contact_sheet", "main"]
 

@@ -1,12 +1,12 @@
 """Physically valid tactile augmentation: the pad's in-plane orientation is arbitrary.
 
-Image convention (:mod:`tvrecon.sim.sensor`, :class:`tvrecon.sim.press.TactileReading`): a tactile image is
+Image convention (:mod:`tvrecon.sim.sensor`, :class:`tvrecon.sim.press.reading.TactileReading`): a tactile image is
 ``(3, H, W)``, the contact-layer displacement in the sensor frame; channel 0 is the in-plane x displacement (local
 ``e_x``, along the columns j), channel 1 the in-plane y displacement (``e_y``, along the rows i), channel 2 the
 normal displacement along ``e_z`` (a scalar under in-plane rotations; > 0 pushed into the pad). Pixel ``(i, j)``
 sits at local ``x = (j - (W-1)/2) s``, ``y = (i - (H-1)/2) s``. The frame is right-handed, ``e_z = -direction``
 points from the object to the hand, and ``e_x`` is the world x axis projected on the contact plane
-(:func:`tvrecon.sim.sensor.sensor_frame`): a convention, not physics. A touch with the pad turned about ``e_z``
+(:func:`tvrecon.sim.sensor.pad.sensor_frame`): a convention, not physics. A touch with the pad turned about ``e_z``
 is another valid touch of the same object, and its image is the original one with the pixel grid *and* the
 (x, y) displacement vectors rotated together.
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tvrecon.data.cache import cache_key
-from tvrecon.data.generated import GeneratedDataset
+from tvrecon.data.generated_dataset import GeneratedDataset
 
 __all__ = ["ContactReport", "contact_report"]
 

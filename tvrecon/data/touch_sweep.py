@@ -21,11 +21,13 @@ import numpy as np
 import torch
 import trimesh
 
-from tvrecon.config_utils import OMIT_IF_DEFAULT
 from tvrecon.data.touches import Touches, TouchPolicy
+from tvrecon.utils.config_utils import OMIT_IF_DEFAULT
 
 if TYPE_CHECKING:
-    from tvrecon.sim.press import EIPSimulator, PressConfig, SensorConfig
+    from tvrecon.sim.press.config import PressConfig
+    from tvrecon.sim.press.simulator import EIPSimulator
+    from tvrecon.sim.sensor.pad import SensorConfig
 
 __all__ = ["PaperSweepTouchPolicy", "eip_geometry_ratios", "sweep_directions"]
 

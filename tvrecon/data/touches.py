@@ -26,13 +26,14 @@ import trimesh
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from tvrecon.config_utils import coerce_config, omitted_from_key
-from tvrecon.data.render import Camera, ray_intersector
-from tvrecon.geometry import check_mesh, perpendicular_basis, world_to_camera
-from tvrecon.sim.placement import pad_footprint, pad_reachable  # the pad's placement, importable from here too
+from tvrecon.data.views import Camera, ray_intersector
+from tvrecon.sim.press.placement import pad_footprint, pad_reachable
+from tvrecon.utils.config_utils import coerce_config, omitted_from_key
+from tvrecon.utils.geometry import check_mesh, perpendicular_basis, world_to_camera
 
 if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
-    from tvrecon.sim.press import EIPSimulator, TactileReading
+    from tvrecon.sim.press.reading import TactileReading
+    from tvrecon.sim.press.simulator import EIPSimulator
 
 __all__ = [
     "ConeTouchPolicy",
@@ -40,8 +41,6 @@ __all__ = [
     "Touches",
     "make_touch_policy",
     "cone_directions",
-    "pad_footprint",
-    "pad_reachable",
     "resize_tactile",
     "sample_touches",
     "simulate_touches",
@@ -171,7 +170,7 @@ class ConeTouchPolicy(TouchPolicy):
         if self.visible_only and not isinstance(camera, Camera):
             raise ValueError(f"{type(self).__name__}.visible_only needs the view: pass camera=Camera(...)")
         filtered = self.visible_only or sim is not None
-        footprint = pad_footprint(sim) if sim is not None else None
+        footprint = pad_footprint(sim.sensor, sim.cfg) if sim is not None else None
         kept: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         count = n * self.oversample if filtered else count
         for _ in range(4):  # grow the candidate pool when few candidates pass the filters

@@ -11,6 +11,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["ChamferDistance", "ChamferResult", "chamfer_distance", "chamfer_terms", "nearest_neighbors"]
 
 _REDUCTIONS = ("mean", "sum", "none")
@@ -28,11 +30,6 @@ class ChamferResult(NamedTuple):
     idx_xy: Tensor
     dist_yx: Tensor
     idx_yx: Tensor
-
-
-def _check_cloud(p: Tensor, name: str) -> None:
-    if p.dim() != 3 or p.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (B, N, 3), got {tuple(p.shape)}")
 
 
 def _lengths_mask(lengths: Tensor | None, B: int, N: int, device: torch.device, name: str) -> Tensor:
@@ -57,8 +54,8 @@ def nearest_neighbors(x: Tensor, y: Tensor, y_mask: Tensor | None = None, chunk:
     Returns:
         dist (B, N) float squared distance (differentiable in x and y) and idx (B, N) int64 into y.
     """
-    _check_cloud(x, "x")
-    _check_cloud(y, "y")
+    check_shape(x, "(B, N, 3)", "x")
+    check_shape(y, "(B, N, 3)", "y")
     if x.shape[0] != y.shape[0]:
         raise ValueError(f"x and y must have the same batch size, got {x.shape[0]} and {y.shape[0]}")
     if chunk is None:
@@ -103,8 +100,8 @@ def chamfer_terms(
     """
     if reduction not in _REDUCTIONS:
         raise ValueError(f"reduction must be one of {_REDUCTIONS}, got {reduction!r}")
-    _check_cloud(x, "x")
-    _check_cloud(y, "y")
+    check_shape(x, "(B, N, 3)", "x")
+    check_shape(y, "(B, N, 3)", "y")
     B, N, M = x.shape[0], x.shape[1], y.shape[1]
     if y.shape[0] != B:
         raise ValueError(f"x and y must have the same batch size, got {B} and {y.shape[0]}")

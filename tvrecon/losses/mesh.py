@@ -26,6 +26,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from tvrecon.losses.chamfer import chamfer_terms
+from tvrecon.utils.shapes import check_shape
 
 __all__ = [
     "DEFAULT_WEIGHTS",
@@ -54,10 +55,8 @@ def _reduce(x: Tensor, reduction: str) -> Tensor:
 
 
 def _check_verts_edges(verts: Tensor, edges: Tensor) -> None:
-    if verts.dim() != 3 or verts.shape[-1] != 3:
-        raise ValueError(f"verts must have shape (B, V, 3), got {tuple(verts.shape)}")
-    if edges.dim() != 2 or edges.shape[1] != 2:
-        raise ValueError(f"edges must have shape (E, 2), got {tuple(edges.shape)}")
+    check_shape(verts, "(B, V, 3)", "verts")
+    check_shape(edges, "(E, 2)", "edges")
 
 
 def edge_length_loss(verts: Tensor, edges: Tensor, reduction: str = "mean") -> Tensor:

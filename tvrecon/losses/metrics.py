@@ -19,6 +19,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.losses.chamfer import chamfer_terms
+from tvrecon.utils.shapes import check_shape
 
 __all__ = [
     "DEFAULT_FSCORE_THRESHOLDS",
@@ -83,8 +84,7 @@ def sample_points_on_mesh(
 
 def _sample_pair(verts: Tensor, faces: Tensor, gt_points: Tensor, num_samples: int, seed: int) -> tuple[Tensor, Tensor]:
     """Seeded area-weighted samples on the prediction and a seeded subsample of the GT cloud (both (B, n, 3))."""
-    if verts.dim() != 3 or verts.shape[-1] != 3:
-        raise ValueError(f"verts must have shape (B, V, 3), got {tuple(verts.shape)}")
+    check_shape(verts, "(B, V, 3)", "verts")
     if gt_points.dim() != 3 or gt_points.shape[-1] != 3 or gt_points.shape[0] != verts.shape[0]:
         raise ValueError(f"gt_points must have shape (B, M, 3) with B={verts.shape[0]}, got {tuple(gt_points.shape)}")
     gen = torch.Generator(device=verts.device)

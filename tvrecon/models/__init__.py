@@ -1,12 +1,25 @@
 """Perception models: ResNet-18 branches, Agg fusion, Pixel2Mesh deformer, reconstructor and tactile classifier."""
 
-from tvrecon.models.backbone import ResNet18Backbone, load_resnet18
-from tvrecon.models.classifier import TactileClassifier
-from tvrecon.models.ellipsoid import EllipsoidTemplate, mesh_edges, unpool_faces, unpool_features, uv_ellipsoid
-from tvrecon.models.fusion import AggBlock, DirectionFFN, TactileVisualFusion, locate_touches, place_embeddings
-from tvrecon.models.gcn import DeformationBlock, GraphConv, GResBlock, MeshDeformer, PerceptualPooling
-from tvrecon.models.projection import camera_to_pixel, project, project_with_depth, world_to_camera
-from tvrecon.models.reconstructor import TactileVisualReconstructor
+from tvrecon.models.components.backbone import ResNet18Backbone, load_resnet18
+from tvrecon.models.components.classifier import TactileClassifier
+from tvrecon.models.components.ellipsoid import (
+    EllipsoidTemplate,
+    mesh_edges,
+    unpool_faces,
+    unpool_features,
+    uv_ellipsoid,
+)
+from tvrecon.models.components.fusion import (
+    AggBlock,
+    DirectionFFN,
+    TactileVisualFusion,
+    locate_touches,
+    place_embeddings,
+)
+from tvrecon.models.components.gcn import DeformationBlock, GraphConv, GResBlock, MeshDeformer, PerceptualPooling
+from tvrecon.models.components.projection import camera_to_pixel, project, project_with_depth
+from tvrecon.models.components.reconstructor import TactileVisualReconstructor
+from tvrecon.utils.geometry import world_to_camera
 
 __all__ = [
     "AggBlock",

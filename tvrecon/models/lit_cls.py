@@ -23,13 +23,9 @@ from tvrecon.data.touch_select import set_loader_epoch
 from tvrecon.models.class_names import datamodule_class_names
 from tvrecon.models.finite_loss import check_finite_loss
 from tvrecon.models.optim import configure_optimizers
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["ClassificationModule", "gather_touches", "other_object_index", "select_touches", "touch_index"]
-
-
-def _check_tactile(tactile: Tensor) -> None:
-    if tactile.dim() != 5 or tactile.shape[2] != 3:
-        raise ValueError(f"tactile must have shape (B, T, 3, h, w), got {tuple(tactile.shape)}")
 
 
 def touch_index(touch_mask: Tensor, n: int, generator: torch.Generator | None = None, random: bool = False) -> Tensor:
@@ -44,8 +40,7 @@ def touch_index(touch_mask: Tensor, n: int, generator: torch.Generator | None = 
     Returns:
         (B, n) int64 indices into T.
     """
-    if touch_mask.dim() != 2:
-        raise ValueError(f"touch_mask must have shape (B, T), got {tuple(touch_mask.shape)}")
+    check_shape(touch_mask, "(B, T)", "touch_mask")
     B, T = touch_mask.shape
     if not 1 <= n <= T:
         raise ValueError(f"n must be in [1, T={T}], got {n}")
@@ -81,7 +76,7 @@ def select_touches(
     Returns:
         (B, n, 3, h, w) float.
     """
-    _check_tactile(tactile)
+    check_shape(tactile, "(B, T, 3, h, w)", "tactile")
     B, T = tactile.shape[:2]
     if touch_mask.shape != (B, T):
         raise ValueError(f"touch_mask must have shape (B, T) = {(B, T)}, got {tuple(touch_mask.shape)}")
@@ -191,7 +186,7 @@ class ClassificationModule(L.LightningModule):
                 f"the classifier reads {list(self.touch_inputs)} per touch but the batch has no {missing}"
                 + (": set data.patches=true" if any(key.startswith("patch_") for key in missing) else "")
             )
-        _check_tactile(batch["tactile"])
+        check_shape(batch["tactile"], "(B, T, 3, h, w)", "tactile")
         idx = touch_index(batch["touch_mask"], n)
         return [gather_touches(batch[key], idx) for key in self.touch_inputs]
 

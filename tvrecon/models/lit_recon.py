@@ -28,14 +28,14 @@ from torch import Tensor, nn
 
 from tvrecon.losses.mesh import MeshLoss
 from tvrecon.losses.metrics import chamfer_metric, fscore
+from tvrecon.models.components.touch_geometry import patch_to_mesh_loss
 from tvrecon.models.finite_loss import check_finite_loss
+from tvrecon.models.mesh_figures import render_mesh_comparison
 from tvrecon.models.optim import configure_optimizers, lr_scaled_groups
-from tvrecon.models.recon_batch import PATCH_KEYS, TOUCH_CONTROLS, gt_to_camera, keep_first_touches
+from tvrecon.models.recon_batch import PATCH_KEYS, gt_to_camera, keep_first_touches
 from tvrecon.models.recon_protocol import ReconstructionTestProtocol
-from tvrecon.models.touch_geometry import patch_to_mesh_loss
-from tvrecon.viz import render_mesh_comparison
 
-__all__ = ["TOUCH_CONTROLS", "ReconstructionModule", "gt_to_camera", "keep_first_touches"]
+__all__ = ["ReconstructionModule"]
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +43,12 @@ MODALITY = {
     "fusion": "tactile_visual",
     "visual_only": "visual",
     "tactile_only": "tactile",
-    "touch_geometry": "tactile_visual",  # tvrecon.models.touch_geometry (reads the contact patches)
+    "touch_geometry": "tactile_visual",  # tvrecon.models.components.touch_geometry (reads the contact patches)
 }
 
 
 class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
-    """Trains and evaluates a :class:`~tvrecon.models.reconstructor.TactileVisualReconstructor`.
+    """Trains and evaluates a :class:`~tvrecon.models.components.reconstructor.TactileVisualReconstructor`.
 
     Args:
         net: the built reconstruction network (its ``mode`` decides the evaluated modes).
@@ -76,8 +76,8 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
             onto the first k touches' contact patches). Needs the samples' ``patch_points`` / ``patch_mask``.
         refine_steps: Adam steps of the refinement.
         patch_loss_weight: weight of the training term pulling every stage's mesh through the used touches' contact
-            patches (:func:`tvrecon.models.touch_geometry.patch_to_mesh_loss`), for networks that return ``touch``
-            (the touch-geometry model); 0 disables it.
+            patches (:func:`tvrecon.models.components.touch_geometry.patch_to_mesh_loss`), for networks that return
+            ``touch`` (the touch-geometry model); 0 disables it.
     """
 
     def __init__(

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 import torch
 from torch import Tensor
 
-from tvrecon.geometry import rotate_to_camera, world_to_camera
+from tvrecon.utils.geometry import rotate_to_camera, world_to_camera
 
 __all__ = ["PATCH_KEYS", "TOUCH_CONTROLS", "control_batch", "gt_to_camera", "keep_first_touches"]
 

@@ -1,7 +1,7 @@
 """Test protocol of tactile-visual mesh reconstruction (paper Tables 3 and 4), mixed into
 :class:`~tvrecon.models.lit_recon.ReconstructionModule`.
 
-Every test batch is evaluated in the modes of the network (see :mod:`tvrecon.tables`):
+Every test batch is evaluated in the modes of the network (see :mod:`tvrecon.report.tables`):
 
 - ``mode="fusion"``: ``"visual"`` (every touch masked out) and ``"tv@k"`` for k in ``eval_touches``;
 - ``mode="visual_only"``: ``"visual"``;
@@ -26,11 +26,11 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from tvrecon.geometry import world_to_camera
 from tvrecon.models.class_names import datamodule_class_names
+from tvrecon.models.mesh_figures import export_obj, render_mesh_comparison
 from tvrecon.models.recon_batch import TOUCH_CONTROLS, control_batch, gt_to_camera, keep_first_touches
 from tvrecon.models.refine import refine_to_patches
-from tvrecon.viz import export_obj, render_mesh_comparison
+from tvrecon.utils.geometry import world_to_camera
 
 __all__ = ["ReconstructionTestProtocol"]
 

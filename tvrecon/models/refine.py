@@ -1,7 +1,7 @@
 """Test-time touch refinement (beyond the paper): deform a predicted mesh smoothly so the contact patches lie on it.
 
-Every contact-patch point (:func:`tvrecon.sim.contact.contact_patch`, mapped to the camera frame) is a sample of the
-true surface, often on the side the camera cannot see. Refinement optimises per-vertex offsets ``delta`` of the
+Every contact-patch point (:func:`tvrecon.sim.sensor.patch.contact_patch`, mapped to the camera frame) is a sample of
+the true surface, often on the side the camera cannot see. Refinement optimises per-vertex offsets ``delta`` of the
 predicted mesh for a few Adam steps on::
 
     mean_p |p - nearest vertex(v + delta)|^2  +  laplacian_weight * mean_v |L(v + delta) - L(v)|^2
@@ -18,6 +18,7 @@ from torch import Tensor
 
 from tvrecon.losses.chamfer import nearest_neighbors
 from tvrecon.losses.mesh import laplacian_loss
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["refine_to_patches"]
 
@@ -45,8 +46,7 @@ def refine_to_patches(
     Returns:
         (B, V, 3) float refined vertices (no gradient).
     """
-    if verts.dim() != 3 or verts.shape[-1] != 3:
-        raise ValueError(f"verts must have shape (B, V, 3), got {tuple(verts.shape)}")
+    check_shape(verts, "(B, V, 3)", "verts")
     B = verts.shape[0]
     if points.dim() != 3 or points.shape[0] != B or points.shape[-1] != 3:
         raise ValueError(f"points must have shape ({B}, N, 3), got {tuple(points.shape)}")

@@ -10,7 +10,9 @@ MuJoCo (the optional ``mujoco`` extra, imported only from its own modules):
 ``tvrecon.robot.pad``.
 """
 
-from tvrecon.robot.finger import FingerReading, PadConfig, TactileFinger
+from tvrecon.robot.finger import TactileFinger
+from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pad_reading import FingerReading
 from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
 from tvrecon.robot.scene import Scene, SceneConfig
 

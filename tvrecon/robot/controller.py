@@ -8,14 +8,13 @@ steps, the object and hand poses, both fingers' tactile readings and a rendered 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import pybullet as p
 from tqdm.auto import tqdm
 
-from tvrecon.robot.finger import FingerReading, TactileFinger, sense_fingers
-from tvrecon.robot.pad import reading_record
+from tvrecon.robot.finger import TactileFinger, sense_fingers
+from tvrecon.robot.pad_reading import FingerReading, reading_record
+from tvrecon.robot.pick_place_config import PickPlaceConfig
 from tvrecon.robot.scene import (
     PANDA_ARM_JOINTS,
     PANDA_FINGER_JOINTS,
@@ -24,9 +23,6 @@ from tvrecon.robot.scene import (
     PANDA_REST,
     Scene,
 )
-
-if TYPE_CHECKING:
-    from tvrecon.robot.pick_place import PickPlaceConfig
 
 __all__ = ["PHASES", "ArmController", "hand_orientation"]
 

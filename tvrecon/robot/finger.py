@@ -14,17 +14,11 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as p
 
-from tvrecon.robot.pad import (
-    ContactPoint,
-    FingerReading,
-    LazySimulator,
-    PadConfig,
-    PadSensor,
-    sense_pads,
-    to_pad_frame,
-)
+from tvrecon.robot.pad import PadSensor, sense_pads
+from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pad_reading import ContactPoint, FingerReading
 
-__all__ = ["PadConfig", "FingerReading", "LazySimulator", "TactileFinger", "sense_fingers", "to_pad_frame"]
+__all__ = ["TactileFinger", "sense_fingers"]
 
 
 class TactileFinger(PadSensor):
@@ -39,7 +33,7 @@ class TactileFinger(PadSensor):
             (the contact plane point in front of it), so the image shows where on the pad the object touches.
             None centres the press on the force-weighted contact point instead.
         pad: pad geometry and caching thresholds.
-        simulator: a ``tvrecon.sim.press.EIPSimulator``; None builds one from ``pad``.
+        simulator: a ``tvrecon.sim.press.simulator.EIPSimulator``; None builds one from ``pad``.
         client: pybullet physics client id.
         name: label used in logs.
     """
@@ -86,7 +80,7 @@ class TactileFinger(PadSensor):
         return out
 
     def contact_points(self) -> list[ContactPoint]:
-        """:meth:`contacts` as engine-independent :class:`~tvrecon.robot.pad.ContactPoint` (normal on B: object
+        """:meth:`contacts` as engine-independent :class:`~tvrecon.robot.pad_reading.ContactPoint` (normal on B: object
         -> finger)."""
         return [
             ContactPoint(int(c[2]), np.asarray(c[6], np.float64), np.asarray(c[7], np.float64), -float(c[8]), c[9])

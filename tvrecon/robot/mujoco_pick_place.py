@@ -33,14 +33,16 @@ import torch  # noqa: E402
 import trimesh  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
-from tvrecon.atomic import atomic_open  # noqa: E402
-from tvrecon.config_utils import coerce_config  # noqa: E402
 from tvrecon.robot.controller import PHASES  # noqa: E402
 from tvrecon.robot.mujoco_camera import MujocoCamera, RendererUnavailable  # noqa: E402
 from tvrecon.robot.mujoco_scene import FINGER_HALF, MAX_OPENING, MujocoScene, MujocoSceneConfig  # noqa: E402
 from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import FingerReading, LazySimulator, PadConfig, reading_record, sense_pads  # noqa: E402
+from tvrecon.robot.pad import LazySimulator, sense_pads
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pad_reading import FingerReading, reading_record
 from tvrecon.robot.perception import GraspPlan, plan_top_grasp  # noqa: E402
+from tvrecon.utils.atomic import atomic_open  # noqa: E402
+from tvrecon.utils.config_utils import coerce_config  # noqa: E402
 
 __all__ = ["MujocoPickPlaceConfig", "MujocoPickPlaceResult", "resolve_object_mesh", "run_mujoco_pick_place", "main"]
 

@@ -30,9 +30,11 @@ import mujoco
 import numpy as np
 import trimesh
 
-from tvrecon.robot.pad import ContactPoint, FingerReading, PadConfig, PadSensor, sense_pads
+from tvrecon.robot.pad import PadSensor
+from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pad_reading import ContactPoint
 
-__all__ = ["TactileSensor", "FingerReading", "PadConfig", "geom_mesh", "sense_pads"]
+__all__ = ["TactileSensor", "geom_mesh"]
 
 _PLANE_EXTENT = 2.0  # metres: an infinite MuJoCo plane is pressed as a slab this wide
 _PLANE_THICKNESS = 0.05
@@ -98,7 +100,7 @@ class TactileSensor(PadSensor):
         model, data: the MuJoCo model and its data (read at each :meth:`sense`; step the data yourself).
         geom: the pad's geom (id or name); its frame is the pad's link frame. Give this or ``body``.
         body: the pad's body (id or name): contacts of any of its geoms count, the body frame is the link frame.
-        pad: a :class:`~tvrecon.robot.pad.PadConfig`, a ``tvrecon.sim.SensorConfig`` (2 cm wide) or a real-sensor
+        pad: a :class:`~tvrecon.robot.pad_config.PadConfig`, a ``tvrecon.sim.SensorConfig`` (2 cm wide) or a real-sensor
             preset name ("digit", "gelsight_mini", "gelsight_r15", "tactip"); None = ``PadConfig()``.
         normal_axis: (3,) press direction in the link frame (out of the pad, towards what it touches).
         up_axis: (3,) the image rows' axis in the link frame.

@@ -19,192 +19,16 @@ set fraction, or the caller asks (e.g. once per control phase). Without contact 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 import trimesh
 
-__all__ = [
-    "reading_record",
-    "ContactPoint",
-    "FingerReading",
-    "LazySimulator",
-    "PadConfig",
-    "PadSensor",
-    "sense_pads",
-    "to_pad_frame",
-]
+from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pad_reading import ContactPoint, FingerReading
 
-
-@dataclass
-class PadConfig:
-    """Physical pad and press settings of a tactile pad on a robot link.
-
-    resolution: (H, W) tactile pixels; pad_size: physical width of the contact layer in metres (2 cm default).
-    n_grid: MPM grid cells across the press domain (the domain spans ``n_grid * dx`` metres, dx = pad cell size).
-    stiffness: N/m of the pad's elastic give (indentation = max(penetration, force / stiffness)).
-    min_depth, max_depth: clamp of the indentation in metres.
-    min_force: total normal force (N) below which the finger counts as not touching.
-    move_tol: re-simulate when the contact point moves more than this on the object (metres).
-    depth_tol: re-simulate when the indentation changes by more than this fraction.
-    E, nu, layers, spacing: pad material / thickness / particle spacing (cells) passed to the EIP simulator.
-    speed_fraction: hand speed of the press as a fraction of the P-wave speed (``PressConfig.speed_fraction``).
-    """
-
-    resolution: tuple[int, int] = (24, 24)
-    pad_size: float = 0.02
-    n_grid: int = 64
-    layers: int = 4
-    E: float = 3.0
-    nu: float = 0.25
-    stiffness: float = 2.5e4
-    min_depth: float = 2.0e-4
-    max_depth: float = 2.5e-3
-    min_force: float = 0.05
-    move_tol: float = 0.003
-    depth_tol: float = 0.35
-    max_steps: int = 400
-    spacing: float = 0.5
-    speed_fraction: float = 0.1
-
-    def __post_init__(self) -> None:
-        self.resolution = tuple(int(r) for r in self.resolution)  # type: ignore[assignment]
-        if len(self.resolution) != 2 or min(self.resolution) < 2:
-            raise ValueError(f"PadConfig.resolution must be (H, W) with H, W >= 2, got {self.resolution}")
-        if not float(self.pad_size) > 0:
-            raise ValueError(f"PadConfig.pad_size must be > 0 metres, got {self.pad_size}")
-        if not 0.0 < float(self.spacing) <= 1.0:
-            raise ValueError(f"PadConfig.spacing must be in (0, 1] grid cells, got {self.spacing}")
-
-    @property
-    def dx(self) -> float:
-        """Grid cell size in metres (the pad spans (max(H, W) - 1) * spacing cells)."""
-        return self.pad_size / ((max(self.resolution) - 1) * self.spacing)
-
-    @property
-    def domain_size(self) -> float:
-        """World metres spanned by the press domain (``PressConfig.domain_size``)."""
-        return self.n_grid * self.dx
-
-    @classmethod
-    def from_sensor(cls, sensor: object, pad_size: float = 0.02, **overrides: object) -> PadConfig:
-        """A pad with a ``tvrecon.sim.SensorConfig``'s resolution, layers, spacing, E and nu, ``pad_size`` m wide."""
-        from tvrecon.sim.sensor import SensorConfig
-
-        if not isinstance(sensor, SensorConfig):
-            raise ValueError(f"from_sensor needs a tvrecon.sim.SensorConfig, got {type(sensor).__name__}")
-        base = {
-            "resolution": tuple(sensor.resolution),
-            "layers": int(sensor.layers),
-            "spacing": float(sensor.spacing),
-            "E": float(sensor.E),
-            "nu": float(sensor.nu),
-            "pad_size": float(pad_size),
-        }
-        return cls(**{**base, **overrides})
-
-    @classmethod
-    def from_preset(cls, name: str, n_grid: int = 64, **overrides: object) -> PadConfig:
-        """A real sensor's pad (``tvrecon.sim.sensor_presets``: "digit", "gelsight_mini", ...) on ``n_grid`` cells.
-
-        The resolution, layers, E and nu come from :func:`~tvrecon.sim.sensor_presets.sensor_config`, the hand speed
-        from its ``press_overrides``; ``pad_size`` is the span of the preset's contact layer in metres (its longer
-        side less one particle spacing, the convention of :attr:`dx`), so a cell is the preset's ``cell_mm``.
-        """
-        from tvrecon.sim.sensor_presets import SENSOR_PRESETS, sensor_config, speed_fraction_for
-
-        sensor = sensor_config(name, n_grid)  # raises ValueError naming the presets
-        preset = SENSOR_PRESETS[name]
-        cell = preset.cell_mm(n_grid) * 1e-3  # metres per cell
-        base = {
-            "n_grid": int(n_grid),
-            "speed_fraction": round(speed_fraction_for(float(sensor.nu)), 4),
-        }
-        return cls.from_sensor(
-            sensor, pad_size=cell * (max(sensor.resolution) - 1) * sensor.spacing, **{**base, **overrides}
-        )
-
-    @classmethod
-    def coerce(cls, pad: PadConfig | object | str | None, n_grid: int = 64) -> PadConfig:
-        """A :class:`PadConfig` from itself, a ``SensorConfig`` (2 cm wide), a preset name, or None (the default)."""
-        if pad is None:
-            return cls()
-        if isinstance(pad, cls):
-            return pad
-        if isinstance(pad, str):
-            return cls.from_preset(pad, n_grid)
-        return cls.from_sensor(pad)
-
-
-@dataclass
-class FingerReading:
-    """One tactile reading of a pad.
-
-    image: (3,H,W) float32 pad-frame displacement in grid cells (x shear, y shear, z normal; z > 0 into the pad).
-    contact: True if the link touches a registered object with at least ``min_force``.
-    force: total engine normal force (N); force_vec: (3,) float64 world force the object exerts on the finger.
-    position: (3,) float64 world contact point (force-weighted, on the object); nan without contact.
-    direction: (3,) float64 unit world press direction (the pad normal, into the object).
-    penetration: max engine penetration (m, >= 0); depth: indentation used for the press (m).
-    body: the touched object's key (pybullet body id, MuJoCo geom id; -1 = none); simulated: True if this call ran
-    a new EIP press.
-    force_field: (3,H,W) float32 pad-frame force per taxel (x, y shear, z normal; simulation units of
-    ``tvrecon.sim.forces``); zeros at rest.
-    patch: (M,3) float64 world points of the contact layer's taxels in contact (the contact patch, moved with the
-    link since the press); (0,3) at rest.
-    spacing: grid cells between neighbouring taxels (for :meth:`rgb` and :meth:`markers`).
-    """
-
-    image: np.ndarray
-    contact: bool
-    force: float
-    force_vec: np.ndarray
-    position: np.ndarray
-    direction: np.ndarray
-    penetration: float
-    depth: float
-    body: int
-    simulated: bool
-    extra: dict = field(default_factory=dict)
-    force_field: np.ndarray | None = None
-    patch: np.ndarray | None = None
-    spacing: float = 0.5
-
-    def rgb(self, **kwargs: object) -> np.ndarray:
-        """(3,H,W) float32 GelSight-style RGB in [0, 1] (``tvrecon.sim.photometric.render_rgb``; kwargs pass on)."""
-        from tvrecon.sim.photometric import render_rgb
-
-        img = torch.as_tensor(np.asarray(self.image, dtype=np.float32))
-        return render_rgb(img, taxel_spacing=self.spacing, **kwargs).numpy()
-
-    def markers(self, marker_spacing: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
-        """Marker grid seen from behind the pad (``tvrecon.sim.markers``).
-
-        Returns:
-            ((M,2) float32 rest positions, (M,2) float32 displaced positions), (x, y) taxel coordinates.
-        """
-        from tvrecon.sim.markers import marker_grid, marker_positions
-
-        img = torch.as_tensor(np.asarray(self.image, dtype=np.float32))
-        rest = marker_grid(tuple(img.shape[-2:]), spacing=marker_spacing)
-        return rest.numpy(), marker_positions(img, rest, taxel_spacing=self.spacing).numpy()
-
-
-@dataclass
-class ContactPoint:
-    """One engine contact between a pad link and an object, in world coordinates (metres, newtons).
-
-    key: the object's key in :attr:`PadSensor.objects`; position: (3,) point on the object's surface;
-    normal: (3,) unit normal from the object towards the pad; penetration: overlap (m, >= 0); force: normal force (N).
-    """
-
-    key: int
-    position: np.ndarray
-    normal: np.ndarray
-    penetration: float
-    force: float
+__all__ = ["LazySimulator", "PadSensor", "sense_pads", "to_pad_frame"]
 
 
 class LazySimulator:
@@ -217,10 +41,11 @@ class LazySimulator:
 
     @property
     def sim(self) -> object:
-        """The ``tvrecon.sim.press.EIPSimulator`` (pad resolution and spacing, domain sized from the pad)."""
+        """The ``tvrecon.sim.press.simulator.EIPSimulator`` (pad resolution and spacing, domain sized from the pad)."""
         if self._sim is None:
-            from tvrecon.sim.press import EIPSimulator, PressConfig
-            from tvrecon.sim.sensor import SensorConfig
+            from tvrecon.sim.press.config import PressConfig
+            from tvrecon.sim.press.simulator import EIPSimulator
+            from tvrecon.sim.sensor.pad import SensorConfig
 
             pc = self.pad
             sensor = SensorConfig(
@@ -254,7 +79,7 @@ class LazySimulator:
 def to_pad_frame(image: torch.Tensor, direction: np.ndarray, up: np.ndarray) -> torch.Tensor:
     """Resample a simulator tactile image from the simulator's sensor frame into a finger pad frame.
 
-    The simulator frame (``tvrecon.sim.sensor.sensor_frame``) has e_z = -direction and e_x from the world x axis;
+    The simulator frame (``tvrecon.sim.sensor.pad.sensor_frame``) has e_z = -direction and e_x from the world x axis;
     the pad frame shares e_z and has e_y along ``up`` (projected onto the contact plane), e_x = e_y x e_z. Pixels
     are bilinearly resampled (zeros outside the pad) and the shear channels rotated with the frame.
 
@@ -266,7 +91,7 @@ def to_pad_frame(image: torch.Tensor, direction: np.ndarray, up: np.ndarray) -> 
     Returns:
         (3,H,W) float32 image in the pad frame.
     """
-    from tvrecon.sim.sensor import sensor_frame
+    from tvrecon.sim.sensor.pad import sensor_frame
 
     if image.ndim != 3 or image.shape[0] != 3:
         raise ValueError(f"image must be (3,H,W), got {tuple(image.shape)}")
@@ -304,8 +129,8 @@ class PadSensor:
             (the contact plane point in front of it), so the image shows where on the pad the object touches.
             None centres the press on the force-weighted contact point instead.
         pad: pad geometry and caching thresholds.
-        simulator: a ``tvrecon.sim.press.EIPSimulator`` or :class:`LazySimulator`; None builds one from ``pad``.
-        name: label used in logs.
+        simulator: a ``tvrecon.sim.press.simulator.EIPSimulator`` or :class:`LazySimulator`; None builds one from
+        ``pad``. name: label used in logs.
         use_penetration: the press depth is max(engine penetration, force / stiffness) when True, force / stiffness
             alone when False (for engines whose penetration is a soft-constraint setting, not a geometric overlap).
     """
@@ -508,7 +333,7 @@ def sense_pads(pads: Sequence[PadSensor], refresh: bool = False) -> list[FingerR
     Returns:
         One :class:`FingerReading` per pad, in order.
     """
-    from tvrecon.sim.contact import contact_patch
+    from tvrecon.sim.sensor.patch import contact_patch
 
     measured = [f._measure(refresh) for f in pads]
     groups: dict[tuple[int, float], list[int]] = {}
@@ -545,22 +370,3 @@ def sense_pads(pads: Sequence[PadSensor], refresh: bool = False) -> list[FingerR
                 patch = cp.points[cp.mask].double().numpy()
             f._store(measured[i][0], job, img.astype(np.float32), ff.astype(np.float32), patch)
     return [m[0] for m in measured]
-
-
-def reading_record(readings: Sequence[FingerReading]) -> dict[str, np.ndarray]:
-    """The per-frame log entries of the pads' readings, one row per pad (what both pick-and-place demos store).
-
-    Returns contact (F,) bool, force (F,), force_vec (F, 3), contact_pos (F, 3), direction (F, 3), penetration (F,),
-    depth (F,), simulated (F,) bool and tactile (F, 3, H, W) float32.
-    """
-    return {
-        "contact": np.array([r.contact for r in readings]),
-        "force": np.array([r.force for r in readings]),
-        "force_vec": np.stack([r.force_vec for r in readings]),
-        "contact_pos": np.stack([r.position for r in readings]),
-        "direction": np.stack([r.direction for r in readings]),
-        "penetration": np.array([r.penetration for r in readings]),
-        "depth": np.array([r.depth for r in readings]),
-        "simulated": np.array([r.simulated for r in readings]),
-        "tactile": np.stack([r.image for r in readings]).astype(np.float32),
-    }

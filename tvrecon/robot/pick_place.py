@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,60 +24,18 @@ import torch
 import trimesh
 from tqdm.auto import tqdm
 
-from tvrecon.atomic import atomic_open
-from tvrecon.config_utils import coerce_config
-from tvrecon.geometry import read_mesh_file
 from tvrecon.robot.controller import PHASES, ArmController, hand_orientation
-from tvrecon.robot.finger import LazySimulator, PadConfig, TactileFinger
-from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
-from tvrecon.robot.scene import PANDA_FINGER_LINKS, PANDA_MAX_OPENING, Scene, SceneConfig
+from tvrecon.robot.finger import TactileFinger
+from tvrecon.robot.pad import LazySimulator
+from tvrecon.robot.perception import GraspPlan, RGBDCamera, plan_top_grasp
+from tvrecon.robot.pick_place_config import PickPlaceConfig
+from tvrecon.robot.scene import PANDA_FINGER_LINKS, PANDA_MAX_OPENING, Scene
+from tvrecon.utils.atomic import atomic_open
+from tvrecon.utils.geometry import read_mesh_file
 
-__all__ = ["PHASES", "PickPlaceConfig", "PickPlaceResult", "load_object_mesh", "run_pick_place", "main"]
+__all__ = ["PickPlaceResult", "load_object_mesh", "run_pick_place", "main"]
 
 PANDA_PAD_CENTER = (0.0, 0.0, 0.044)  # centre of the flat inner face of panda's finger collision mesh (link frame)
-
-
-@dataclass
-class PickPlaceConfig:
-    """Everything the demo needs (mirrors ``configs/robot/pick_place.yaml``).
-
-    object: a procedural class name (``tvrecon.data.shapes``) or a path to a mesh file trimesh can load.
-    place_xy: (2,) where the object is put down. lift_height / carry_height: metres above the grasp height.
-    speed: Cartesian hand speed, m/s. grip_force: finger motor force, N. frame_every: simulation steps per logged
-    frame. render_size: (W, H) of the scene frames. out_dir: where the GIF, strip and log go.
-    """
-
-    object: str = "can"
-    seed: int = 0
-    mesh: trimesh.Trimesh | None = None  # a mesh given directly through the Python API (overrides ``object``)
-    place_xy: tuple[float, float] = (0.5, 0.15)
-    approach_height: float = 0.10
-    lift_height: float = 0.12
-    speed: float = 0.2
-    close_speed: float = 0.05
-    grip_force: float = 40.0
-    squeeze_steps: int = 90
-    settle_steps: int = 40
-    frame_every: int = 8
-    contact_force: float = 6.0
-    render: bool = True
-    render_size: tuple[int, int] = (256, 192)
-    render_eye: tuple[float, float, float] = (0.98, 0.0, 0.86)
-    render_target: tuple[float, float, float] = (0.47, 0.0, 0.69)
-    out_dir: str = "outputs/robot"
-    write_gif: bool = True
-    write_mp4: bool = True  # needs imageio-ffmpeg ([robot] extra); skipped with a warning when missing
-    write_strip: bool = True
-    progress: bool = True
-    torch_threads: int | None = 1  # small EIP presses run fastest single-threaded; None keeps torch's setting
-    scene: SceneConfig = field(default_factory=SceneConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)
-    pad: PadConfig = field(default_factory=PadConfig)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> PickPlaceConfig:
-        """Build from a plain (Hydra/OmegaConf container) dict; nested dicts fill the nested dataclasses."""
-        return coerce_config(cls, d, "pick_place")
 
 
 @dataclass
@@ -345,7 +303,7 @@ def _hydra_entry() -> None:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import DictConfig, OmegaConf
 
-    from tvrecon.cli_errors import hydra_task
+    from tvrecon.utils.cli_errors import hydra_task
 
     config_dir = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
 
@@ -375,9 +333,9 @@ def main() -> None:
 
     Exits with status 1 when the run ends ``[FAILED]`` (the log, gif and strip are still written), 0 on ``[OK]``;
     bad input (a missing or unreadable mesh, a wrong option) is one line on stderr and exit status 2, Ctrl-C 130
-    (``tvrecon.cli_errors``; ``--debug`` keeps the traceback).
+    (``tvrecon.utils.cli_errors``; ``--debug`` keeps the traceback).
     """
-    from tvrecon.cli_errors import run_hydra_cli
+    from tvrecon.utils.cli_errors import run_hydra_cli
 
     run_hydra_cli(_hydra_entry, prog=PROG)
 

@@ -22,7 +22,7 @@ import pybullet as p
 import pybullet_data
 import trimesh
 
-from tvrecon.geometry import check_mesh
+from tvrecon.utils.geometry import check_mesh
 
 __all__ = [
     "PANDA_ARM_JOINTS",

@@ -13,7 +13,7 @@ from pathlib import Path
 import imageio.v2 as imageio
 import matplotlib
 
-from tvrecon.atomic import atomic_open, atomic_savefig
+from tvrecon.utils.atomic import atomic_open, atomic_savefig
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402

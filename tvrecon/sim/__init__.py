@@ -1,26 +1,24 @@
 """EIP tactile simulation: MLS-MPM in torch, sensor pad, press protocol (paper section 3).
 
-Public names::
+Rooms, bottom to top (each imports only the ones below it)::
 
-    MPMConfig, ParticleState, MLSMPM, cfl_dt           # the solver contract (mpm.py)
-    SphereCollider, PlaneCollider, MeshCollider          # rigid colliders (colliders.py)
-    SensorConfig, sensor_frame                           # the pad (sensor.py)
-    PressConfig, TactileReading, EIPSimulator            # the press protocol, Algorithm 1 (press.py)
-    terminal_chamfer                                     # its terminal check, paper eq. 12 (stop_rules.py)
+    bodies/   SphereCollider, PlaneCollider, MeshCollider   rigid colliders, grid contact, mesh sdf / sign / voxels
+    mpm/      MPMConfig, ParticleState, MLSMPM, cfl_dt      the solver contract; particle contact; compiled backend
+    sensor/   SensorConfig, sensor_frame, ContactPatch      the pad, presets, contact patch, forces, markers, RGB
+    press/    PressConfig, TactileReading, EIPSimulator     Algorithm 1: placement, stop rules (eq. 12), the loop
 
-The press protocol by concept: ``placement`` (where the pad goes), ``stop_rules`` (when it stops), ``press_run``
-(the solver loop, each touch approach -> press -> release -> done); ``press`` ties them together.
-    ContactPatch, contact_patch, reading_patch           # a touch mapped back to 3D world points (contact.py)
-
-Sensor outputs beyond displacement live in their own modules: ``forces`` (per-taxel force field, also on every
-reading as ``force_field``), ``markers`` (marker-displacement images), ``photometric`` (GelSight-style RGB).
+``plots`` draws readings; ``python -m tvrecon.sim`` is the press CLI.
 """
 
-from tvrecon.sim.colliders import MeshCollider, PlaneCollider, SphereCollider
-from tvrecon.sim.contact import ContactPatch, contact_patch, reading_patch
-from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState, cfl_dt
-from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading, chamfer_eq13, terminal_chamfer
-from tvrecon.sim.sensor import SensorConfig, alpha_profile, pad_lattice, sensor_frame
+from tvrecon.sim.bodies import MeshCollider, PlaneCollider, SphereCollider
+from tvrecon.sim.mpm.solver import MLSMPM
+from tvrecon.sim.mpm.state import MPMConfig, ParticleState, cfl_dt
+from tvrecon.sim.press.config import PressConfig
+from tvrecon.sim.press.reading import TactileReading, reading_patch
+from tvrecon.sim.press.simulator import EIPSimulator
+from tvrecon.sim.press.stop_rules import terminal_chamfer
+from tvrecon.sim.sensor.pad import SensorConfig, alpha_profile, pad_lattice, sensor_frame
+from tvrecon.sim.sensor.patch import ContactPatch, contact_patch
 
 __all__ = [
     "ContactPatch",
@@ -38,7 +36,6 @@ __all__ = [
     "TactileReading",
     "alpha_profile",
     "cfl_dt",
-    "chamfer_eq13",  # deprecated alias of terminal_chamfer
     "pad_lattice",
     "sensor_frame",
     "terminal_chamfer",

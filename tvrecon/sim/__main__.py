@@ -8,7 +8,7 @@ with ``--surface``, ``pad_surface.ply`` (marching-cubes mesh of the deformed pad
 adds ``force.png`` (per-taxel normal/shear force), ``markers.png`` (marker grid as a camera behind the pad sees it),
 ``rgb.png`` (GelSight-style photometric image) and ``outputs.png`` (all of them beside the displacement).
 ``--sensor digit`` (or ``gelsight_mini``, ``gelsight_r15``, ``tactip``) presses a pad with that sensor's size,
-thickness and material (``tvrecon.sim.sensor_presets``, ``docs/sensors.md``).
+thickness and material (``tvrecon.sim.sensor.presets``, ``docs/sensors.md``).
 """
 
 from __future__ import annotations
@@ -23,14 +23,16 @@ import numpy as np
 import torch
 import trimesh
 
-from tvrecon.cli_errors import call_cli
-from tvrecon.geometry import read_mesh_file
-from tvrecon.sim.particle_contact import CONTACT_MODES
-from tvrecon.sim.press import EIPSimulator, PressConfig, TactileReading
-from tvrecon.sim.render import atomic_write_bytes, save_ply, save_sequence_png, save_tactile_png
-from tvrecon.sim.sensor import SensorConfig
-from tvrecon.sim.sensor_presets import SENSOR_PRESETS
-from tvrecon.sim.stop_rules import TERMINAL_MEASURES
+from tvrecon.sim.mpm.state import CONTACT_MODES
+from tvrecon.sim.plots import save_ply, save_sequence_png, save_tactile_png
+from tvrecon.sim.press.config import TERMINAL_MEASURES, PressConfig
+from tvrecon.sim.press.reading import TactileReading
+from tvrecon.sim.press.simulator import EIPSimulator
+from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.presets import SENSOR_PRESETS
+from tvrecon.utils.atomic import atomic_write_bytes
+from tvrecon.utils.cli_errors import call_cli
+from tvrecon.utils.geometry import read_mesh_file
 
 SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 PROG = "python -m tvrecon.sim"
@@ -206,7 +208,7 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
             values = torch.cat([normal, torch.zeros(reading.particles.shape[1] - H * W)])
             files[f"ply{k}"] = save_ply(reading.particles[k], out / f"pad_step{reading.frame_steps[k]:04d}.ply", values)
         if args.surface:
-            from tvrecon.sim.reconstruct import pad_surface
+            from tvrecon.sim.sensor.surface import pad_surface
 
             spacing_world = sensor.spacing * press.domain_size / press.n_grid
             surf = pad_surface(reading.particles[pick[-1]], spacing=spacing_world)
@@ -240,7 +242,7 @@ def cli_sensor(args: argparse.Namespace) -> tuple[SensorConfig, dict]:
     """The pad of a CLI run and the PressConfig fields that go with it.
 
     Without ``--sensor``: the flags (defaults: a 64x64 pad, 6 layers, E 3, nu 0.25). With ``--sensor NAME``: the
-    preset's pad at ``--n-grid`` (``tvrecon.sim.sensor_presets``) and its hand speed; ``--resolution``, ``--layers``,
+    preset's pad at ``--n-grid`` (``tvrecon.sim.sensor.presets``) and its hand speed; ``--resolution``, ``--layers``,
     ``--E`` and ``--nu`` given explicitly still override it. Meshes stay in the CLI's unit-extent scale, so the
     printed scale says how many mm one cell and the object stand for.
     """
@@ -271,15 +273,15 @@ def write_sensor_outputs(
     reading: TactileReading, sensor: SensorConfig, args: argparse.Namespace, out: Path
 ) -> dict[str, Path]:
     """``force.png``, ``markers.png``, ``rgb.png`` (those in ``args.outputs``) and ``outputs.png``; {name: path}."""
-    from tvrecon.sim.markers import marker_displacements, marker_grid, render_markers
-    from tvrecon.sim.photometric import render_rgb
-    from tvrecon.sim.render_outputs import (
+    from tvrecon.sim.plots import (
         auto_arrow_gain,
         save_force_png,
         save_markers_png,
         save_outputs_png,
         save_rgb_png,
     )
+    from tvrecon.sim.sensor.markers import marker_displacements, marker_grid, render_markers
+    from tvrecon.sim.sensor.photometric import render_rgb
 
     files: dict[str, Path] = {}
     image = reading.image.detach().cpu()
@@ -339,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=PRESS_DEFAULTS.threshold_grid,
         metavar="N",
         help=f"terminal threshold in squared cells of an N-cell grid (default {PRESS_DEFAULTS.threshold_grid}); "
-        "0: in the press's own cells (--contact grid --threshold-grid 0 is the press before issue 15 item 1)",
+        "0: in the press's own cells (--contact grid --threshold-grid 0 is the earlier default press)",
     )
     p.add_argument(
         "--terminal",
@@ -379,7 +381,7 @@ def _main(argv: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     """The press CLI; returns the exit status: 0, 2 (bad input, one line on stderr), 1 (the press failed).
 
-    ``--debug`` keeps the traceback (``tvrecon.cli_errors``).
+    ``--debug`` keeps the traceback (``tvrecon.utils.cli_errors``).
     """
     return call_cli(_main, argv, prog=PROG)
 

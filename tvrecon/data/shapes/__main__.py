@@ -6,8 +6,8 @@ import argparse
 import logging
 from pathlib import Path
 
-from tvrecon.data.shapes.contact import contact_sheet
 from tvrecon.data.shapes.library import SPLITS, ObjectLibrary
+from tvrecon.data.shapes.sheet import contact_sheet
 
 
 def main(argv: list[str] | None = None) -> Path:
@@ -36,6 +36,6 @@ def main(argv: list[str] | None = None) -> Path:
 
 
 if __name__ == "__main__":
-    from tvrecon.cli_errors import run_cli
+    from tvrecon.utils.cli_errors import run_cli
 
     run_cli(main, prog="python -m tvrecon.data.shapes")  # errors: one line, exit 2 / 1 / 130

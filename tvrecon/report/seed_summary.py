@@ -1,0 +1,61 @@
+"""Mean +- std over seeds of the reconstruction modes that decide whether touch helps (runs of one experiment with
+several seeds, e.g. ``train.py -m experiment=touch_geometry seed=42,43``).
+
+One row per experiment name with at least two results; columns: no touch, Tactile & Visual with k touches, the
+same refined onto the touches' contact patches, and the touch controls at the most touches (another object's
+touches, blank images). For the visual-only model the refined columns are its no-touch prediction refined with k
+touches (``visual+refine@k``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from tvrecon.report.table_format import PRETTY_NAMES, RECON_TOUCHES, Table, check_results, mean_std, ordered_rows
+
+__all__ = ["build_seed_summary"]
+
+
+def _cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
+    """``mean +- std`` of the chamfer in the first of ``modes`` each result has; ``-`` unless every result has one."""
+    values = []
+    for r in results:
+        mode = next((m for m in modes if m in r["modes"]), None)
+        if mode is None:
+            return "-"
+        values.append(float(r["modes"][mode]["chamfer"]))
+    mean, std = mean_std(values)
+    return f"{mean:.2f} +- {std:.2f}"
+
+
+def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
+    """Chamfer (x1e-3) mean +- std over the seeds of every reconstruction experiment run with two or more seeds."""
+    recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    for r in recon:
+        groups.setdefault(str(r["name"]), []).append(r)
+    k_max = max(touches)
+    header = (
+        ["Model", "Seeds", "No touch"]
+        + [f"T&V {k}" for k in touches]
+        + [f"T&V {k} + refinement" for k in touches]
+        + [f"Another object's {k_max}", f"Blank {k_max}"]
+    )
+    rows = []
+    for name, runs in groups.items():
+        if len(runs) < 2:
+            continue
+        seeds = ", ".join(str(r.get("seed", "?")) for r in runs)
+        row = [PRETTY_NAMES.get(name, name), seeds, _cell(runs, ["visual"])]
+        row += [_cell(runs, [f"tv@{k}", f"tactile@{k}"]) for k in touches]
+        row += [_cell(runs, [f"tv@{k}+refine", f"tactile@{k}+refine", f"visual+refine@{k}"]) for k in touches]
+        row += [_cell(runs, [f"tv@{k_max}:{c}", f"tactile@{k_max}:{c}"]) for c in ("other", "blank")]
+        rows.append(row)
+    notes = [
+        "Chamfer x1e-3, mean +- sample std over the seeds ('-' where a seed lacks the mode). No touch: every touch "
+        "masked out (for the visual-only model, its only mode). + refinement: the prediction pulled onto the k "
+        "touches' contact patches at test time (the visual-only model's no-touch prediction). Another object's / "
+        f"Blank: the {k_max} touches' content replaced (touch_controls)."
+    ]
+    return Table("Over seeds: mean +- std", header, rows, notes)

@@ -1,0 +1,148 @@
+"""A fused P2G scatter for the compiled MLS-MPM step on CPU (opt-in ``compile=True``): one small C++ loop that
+computes each particle's stress and affine momentum and adds its 27 stencil contributions straight onto the
+``(N, 4)`` node grid ``[m_i, (m v)_i]`` (paper eq. 5-6).
+
+The inductor path it replaces on CPU (``compiled.kernels.p2g_contrib`` rows of 108 per particle, an eager ``index_add_``
+of those rows, then ``node_sums``) writes and reads ~10 MB per step for a paper pad and pays ~20 ns per scattered row
+in ``index_add_``; here each particle's 27 x 4 values go to the 9 runs of 3 neighbouring nodes (12 contiguous
+floats each) without a buffer. The sums are the same terms added in another order (per node, particle by particle),
+so the grid equals the row path to float32 round-off.
+
+Built once per process with inductor's own C++ toolchain and cache (``torch._inductor.codecache.CppCodeCache``, the
+compiler the compiled path needs anyway). Used only for float32 CPU tensors on one torch thread (the loop is serial:
+scattered adds of different particles may hit the same node); anything else, or a failed build, keeps the row path.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+
+import torch
+from torch import Tensor
+
+__all__ = ["SOURCE", "fused_p2g", "p2g_grid_available"]
+
+log = logging.getLogger(__name__)
+
+#: the C++ source: phase 1 (a loop over particles, ``omp simd``) computes per particle the 13 numbers
+#: q = [m, then per axis a: mv0_a, dx A_a0, dx A_a1, dx A_a2] (channel-first (13, P)); phase 2 adds
+#: ``w_o [m, mv0 + dx A o]`` for the 27 offsets o = (i, j, k) to node ``lin + i S0 + j S1 + k`` of the (N, 4) grid,
+#: the 4 channels of a node as one 4-float vector (GCC / Clang vector extension: another compiler fails the build,
+#: and the row path stays).
+#: The arithmetic is ``compiled.kernels.p2g_contrib``'s, term by term in its order.
+SOURCE = r"""
+#include <cstdint>
+#include <cstring>
+typedef float v4 __attribute__((vector_size(16)));
+extern "C" int64_t p2g_grid(const float* F, const float* R, const float* C, const float* v, const float* fx,
+                            const float* w, const float* m_, const float* vol, const int64_t* lin, int64_t P,
+                            int64_t S0, int64_t S1, int64_t n_nodes, float mu, float lam, float dt, float dx,
+                            float inv_dx, float* q, float* grid) {
+  const float gscale = 4.0f * dt * inv_dx * inv_dx;
+#pragma omp simd
+  for (int64_t p = 0; p < P; ++p) {
+    float f[9], d[9], tau[9];
+    for (int e = 0; e < 9; ++e) { f[e] = F[e * P + p]; d[e] = 2.0f * mu * (f[e] - R[e * P + p]); }
+    const float cof0 = f[4] * f[8] - f[5] * f[7], cof1 = f[5] * f[6] - f[3] * f[8], cof2 = f[3] * f[7] - f[4] * f[6];
+    const float J = f[0] * cof0 + f[1] * cof1 + f[2] * cof2;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b)
+        tau[3 * a + b] = d[3 * a] * f[3 * b] + d[3 * a + 1] * f[3 * b + 1] + d[3 * a + 2] * f[3 * b + 2];
+    const float pr = lam * (J - 1.0f) * J;
+    tau[0] = tau[0] + pr; tau[4] = tau[4] + pr; tau[8] = tau[8] + pr;
+    const float m = m_[p], gamma = gscale * vol[p];
+    const float f0 = fx[p], f1 = fx[P + p], f2 = fx[2 * P + p];
+    q[p] = m;
+    for (int a = 0; a < 3; ++a) {
+      const float A0 = m * C[(3 * a) * P + p] - gamma * tau[3 * a];
+      const float A1 = m * C[(3 * a + 1) * P + p] - gamma * tau[3 * a + 1];
+      const float A2 = m * C[(3 * a + 2) * P + p] - gamma * tau[3 * a + 2];
+      q[(1 + 4 * a) * P + p] = m * v[a * P + p] - dx * (A0 * f0 + A1 * f1 + A2 * f2);
+      q[(2 + 4 * a) * P + p] = dx * A0; q[(3 + 4 * a) * P + p] = dx * A1; q[(4 + 4 * a) * P + p] = dx * A2;
+    }
+  }
+  int64_t outside = 0;  // particles whose 3x3x3 stencil leaves the block: skipped, counted, an error in Python
+  for (int64_t p = 0; p < P; ++p) {
+    const int64_t b0 = lin[p];
+    if (b0 < 0 || b0 + 2 * S0 + 2 * S1 + 2 >= n_nodes) { ++outside; continue; }
+    v4 c0 = {q[p], q[P + p], q[5 * P + p], q[9 * P + p]};
+    v4 ci = {0.0f, q[2 * P + p], q[6 * P + p], q[10 * P + p]};
+    v4 cj = {0.0f, q[3 * P + p], q[7 * P + p], q[11 * P + p]};
+    v4 ck = {0.0f, q[4 * P + p], q[8 * P + p], q[12 * P + p]};
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        float* g = grid + 4 * (b0 + i * S0 + j * S1);
+        const v4 base = (c0 + (float)i * ci) + (float)j * cj;
+        for (int k = 0; k < 3; ++k) {
+          const float wo = w[(9 * i + 3 * j + k) * P + p];
+          v4 acc;
+          std::memcpy(&acc, g + 4 * k, sizeof(v4));
+          acc += wo * (base + (float)k * ck);
+          std::memcpy(g + 4 * k, &acc, sizeof(v4));
+        }
+      }
+  }
+  return outside;
+}
+"""
+
+_LIB: object | None = None  # the loaded library, False after a failed build
+
+
+def _library():
+    global _LIB
+    if _LIB is None:
+        try:
+            from torch._inductor.codecache import CppCodeCache
+
+            lib = CppCodeCache.load(SOURCE)
+            lib.p2g_grid.restype = ctypes.c_int64
+            _LIB = lib
+        except Exception as e:  # noqa: BLE001 - no compiler, another torch: the row path stays
+            log.warning("the fused P2G scatter could not be built (%s: %s); using the row scatter", type(e).__name__, e)
+            _LIB = False
+    return _LIB or None
+
+
+def p2g_grid_available(*tensors: Tensor) -> bool:
+    """Whether :func:`fused_p2g` runs for these inputs: all float32 on the CPU, one torch thread, library built."""
+    if not all(t.device.type == "cpu" and t.dtype == torch.float32 for t in tensors):
+        return False
+    return torch.get_num_threads() == 1 and bool(_library())
+
+
+def fused_p2g(
+    Ft: Tensor,
+    Rt: Tensor,
+    Ct: Tensor,
+    vt: Tensor,
+    fx: Tensor,
+    w: Tensor,
+    m: Tensor,
+    vol: Tensor,
+    lin: Tensor,
+    n_nodes: int,
+    S0: int,
+    S1: int,
+    mu: float,
+    lam: float,
+    dt: float,
+    dx: float,
+    inv_dx: float,
+) -> Tensor:
+    """The P2G grid (N, 4) ``[m_i, (m v)_i]`` of particles with channel-first Ft, Rt, Ct (9, P), vt, fx (3, P),
+    w (27, P), masses m and volumes vol (P,) and base nodes lin (P,) int64 on a block grid of n_nodes nodes with
+    node-axis strides S0, S1 (call only where :func:`p2g_grid_available`)."""
+    P = lin.shape[0]
+    args = [t.contiguous() for t in (Ft, Rt, Ct, vt, fx, w, m, vol)]
+    lin = lin.contiguous()
+    q = torch.empty(13, P, dtype=torch.float32)
+    grid = torch.zeros(n_nodes, 4, dtype=torch.float32)
+    ptr = [ctypes.c_void_p(t.data_ptr()) for t in (*args, lin)]
+    ints = [ctypes.c_int64(k) for k in (P, S0, S1, n_nodes)]
+    floats = [ctypes.c_float(k) for k in (mu, lam, dt, dx, inv_dx)]
+    outside = _library().p2g_grid(*ptr, *ints, *floats, ctypes.c_void_p(q.data_ptr()), ctypes.c_void_p(grid.data_ptr()))
+    if outside:  # the row path's index_add_ raises here too; nothing was written out of bounds
+        raise IndexError(f"fused P2G: the stencils of {outside} of {P} particles leave the {n_nodes}-node block")
+    return grid

@@ -1,0 +1,149 @@
+"""The sparse block grid of :class:`tvrecon.sim.mpm.solver.MLSMPM`: where the nodes are, and which ones a particle
+touches.
+
+Each scene gets a block of nodes aligned to the global lattice and covering only the bounding box of its particles'
+stencils (:func:`block_layout`); nodes are numbered scene-major, then ``i``, ``j``, ``k``, so a stencil offset is a
+fixed shift along the node axis (:func:`shift_nodes`). :class:`Stencil` is what P2G and G2P share in one step;
+:class:`Transfer` is what the solver keeps of the last step to share the collider force out over the particles
+(:func:`share_node_force`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "FIX_HINT",
+    "MAX_GRID_NODES",
+    "Stencil",
+    "Transfer",
+    "block_dims",
+    "block_layout",
+    "check_grid_speed",
+    "share_node_force",
+    "shift_nodes",
+    "stencil_offsets",
+]
+
+FIX_HINT = "reduce dt / hand speed, increase n_grid"
+MAX_GRID_NODES = 64_000_000
+
+
+class Stencil(NamedTuple):
+    """Particle -> node stencil of one step, shared by P2G and G2P (P particles, B scenes, N block-grid nodes)."""
+
+    fx: Tensor  # (P, 3) particle position in cells relative to its base node, in [0.5, 1.5)
+    w: Tensor  # (27, P) quadratic B-spline weight of each stencil node, offsets (i, j, k) with i slowest
+    lo: Tensor  # (B, 3) int64 global node index of each scene's block origin
+    lin: Tensor  # (P,) int64 linear block-grid index of each particle's base node
+    D: list[int]  # block dims per scene (nodes per axis)
+    n_nodes: int  # N = B * D[0] * D[1] * D[2]
+    chunk: int  # particles per chunk of the stencil passes (>= P: all at once)
+
+
+class Transfer(NamedTuple):
+    """The last step's transfer, references to tensors the step computed anyway (detached)."""
+
+    lin: Tensor  # (P,) base node of each particle
+    w: Tensor  # (27, P) stencil weights
+    node_mass: Tensor  # (N,) grid mass
+    node_force: Tensor  # (N, 3) force the collider(s) exerted on each node
+    strides: tuple[int, int]  # (S0, S1): node-axis strides of i and j
+
+
+def stencil_offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
+    """(27, 3) node offsets (i, j, k) in {0,1,2}^3, i slowest."""
+    r = torch.arange(3, device=device)
+    o = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(27, 3)
+    return o.to(dtype)
+
+
+def shift_nodes(t: Tensor, s: int) -> Tensor:
+    """Shift along the last (node) axis: out[..., n] = t[..., n - s], zero filled (s < 0 shifts the other way)."""
+    if s == 0:
+        return t
+    return torch.nn.functional.pad(t, (s, -s))
+
+
+def block_dims(lo_f: Tensor, hi_f: Tensor, B: int) -> list[int]:
+    """Block dims [3] (nodes per axis, the same for every scene) from the per-scene bounds of the base nodes, lo_f and
+    hi_f (B, 3) (float, whole numbers). Raises FloatingPointError on a non-finite or exploded state."""
+    ext = hi_f - lo_f + 3.0  # nodes per axis: base .. base + 2
+    bounds = torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)]).tolist()
+    if not all(math.isfinite(b) for b in bounds):
+        raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {FIX_HINT}")
+    D = [int(d) for d in bounds[:3]]
+    if B * D[0] * D[1] * D[2] > MAX_GRID_NODES:
+        raise FloatingPointError(f"MPM state exploded: particles spread over {D} grid cells per scene; {FIX_HINT}")
+    return D
+
+
+def block_layout(
+    base_f: Tensor, batch: Tensor | None, B: int, block: int | None = None
+) -> tuple[Tensor, Tensor, list[int]]:
+    """Local grid blocks of the particles' base nodes ``base_f`` (P, 3) (float, whole numbers).
+
+    ``block``: particles per scene when ``batch`` is the contiguous layout ``arange(B).repeat_interleave(block)``
+    (as :class:`tvrecon.sim.press.loop.PressLoop` builds it): the per-scene bounds are then plain reductions over a
+    ``(B, block, 3)`` view instead of a scatter (same values: min and max are exact). None: any ``batch``.
+
+    Returns the per-scene origin lo (B, 3) int64, the linear node index of each particle's base node (P,) and the
+    block dims D [3]. Raises FloatingPointError on a non-finite or exploded state.
+    """
+    if batch is None:
+        lo_f = base_f.amin(0, keepdim=True)
+        hi_f = base_f.amax(0, keepdim=True)
+    elif block is not None:
+        lo_f, hi_f = torch.aminmax(base_f.reshape(B, block, 3), dim=1)
+    else:
+        idx = batch[:, None].expand(-1, 3)
+        lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
+        hi_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amax", include_self=False)
+    D = block_dims(lo_f, hi_f, B)
+    nb = D[0] * D[1] * D[2]
+    lo = lo_f.to(torch.int64)  # (B, 3)
+    base = base_f.to(torch.int64)
+    if batch is not None and block is not None:
+        local = (base.view(B, block, 3) - lo[:, None]).view(-1, 3)
+    else:
+        local = base - (lo if batch is None else lo[batch])  # (P, 3)
+    lin = (local[:, 0] * D[1] + local[:, 1]) * D[2] + local[:, 2]
+    if batch is not None:
+        if block is not None:
+            lin = (lin.view(B, block) + torch.arange(B, device=lin.device)[:, None] * nb).view(-1)
+        else:
+            lin = lin + batch * nb
+    return lo, lin, D
+
+
+def check_grid_speed(vmax: float, dt: float, dx: float) -> None:
+    """Raise FloatingPointError when the fastest grid node (``vmax``, its largest velocity component) would move more
+    than one cell in a step, or is NaN."""
+    if not vmax * dt <= dx:  # also catches NaN
+        raise FloatingPointError(
+            f"MPM state exploded (grid speed {vmax:.3g} moves {vmax * dt / dx:.3g} cells per step, NaN or > 1): "
+            f"{FIX_HINT}"
+        )
+
+
+def share_node_force(transfer: Transfer, mass: Tensor, o_int: Tensor) -> Tensor:
+    """Node forces shared out over the particles: ``f_p = m_p sum_i w_ip f_i / m_i``.
+
+    Args:
+        transfer: the step's :class:`Transfer`.
+        mass: (P,) particle masses of that step's state.
+        o_int: (27, 3) int64 stencil offsets (:func:`stencil_offsets`).
+    Returns:
+        (P, 3) force on each particle, detached.
+    """
+    lin, w, gm, node_force, (S0, S1) = transfer
+    if mass.shape != lin.shape:
+        raise ValueError(f"mass must be (P,) = {tuple(lin.shape)} like the last step's particles, got {mass.shape}")
+    idx = lin[None, :] + (o_int[:, 0] * S0 + o_int[:, 1] * S1 + o_int[:, 2])[:, None]  # (27, P) stencil nodes
+    per_mass = node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]  # (N, 3)
+    acc = (w[:, :, None] * per_mass[idx]).sum(0)  # (P, 3)
+    return mass.detach().to(acc)[:, None] * acc

@@ -1,0 +1,209 @@
+"""The EIP press protocol (paper Algorithm 1): place a sensor pad against a mesh and press until a stop rule.
+
+Coordinates. For every touch the simulation domain ``[0, 1)^3`` (``n_grid`` cells spanning ``domain_size`` world
+units) is attached to the *sensor frame* (see :func:`tvrecon.sim.sensor.pad.sensor_frame`): domain x, y follow the
+contact plane and domain -z is the press direction, so the pad is aligned with the grid whatever the world
+direction. The domain point (0.5, 0.5, 0.5 + dx / 2) is the *touch point*: laterally the given ``position``, along the
+press axis the highest point of the object under the pad's footprint (found by ray casting), so the pad starts
+``gap`` cells in front of the first point it will touch. World <-> domain::
+
+    u = R^T (w - origin) / domain_size + c        w = origin + R (u - c) domain_size,   c = (0.5, 0.5, 0.5 + dx / 2)
+
+(the touch plane lies half-way between grid node planes, see :func:`tvrecon.sim.press.placement.touch_z`)
+
+The concepts live in their own modules; this one holds the configuration and the public entry points:
+
+- :mod:`tvrecon.sim.press.placement`: ray casts from the pad's footprint, reach, the default touch point, the data
+  pipeline's reachability test (``pad_footprint``, ``pad_reachable``);
+- :mod:`tvrecon.sim.press.stop_rules`: the ordered stop rules (travel limit, then the first configured of ``depth`` >
+  ``force`` > ``threshold``, the terminal check of Algorithm 1, :func:`terminal_chamfer`); a ``depth`` raises
+  ``max_depth`` to ``depth + 0.5`` when shorter (:func:`~tvrecon.sim.press.stop_rules.travel_for_depth`);
+- :mod:`tvrecon.sim.press.loop`: the solver loop, each touch going approach -> press -> release -> done, and the
+  :class:`TactileReading` it returns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+import trimesh
+from torch import Tensor
+
+from tvrecon.sim.mpm.materials import p_wave_speed
+from tvrecon.sim.mpm.state import MPMConfig, cfl_dt
+from tvrecon.sim.press import placement
+from tvrecon.sim.press.config import PressConfig
+from tvrecon.sim.press.loop import PressLoop
+from tvrecon.sim.press.reading import TactileReading
+from tvrecon.sim.press.stop_rules import travel_for_depth
+from tvrecon.sim.sensor.pad import SensorConfig, _scalar
+from tvrecon.utils.config_utils import (
+    check_instance,
+    check_known_keys,
+    field_names,
+)
+from tvrecon.utils.shapes import check_shape
+
+__all__ = ["EIPSimulator"]
+
+
+class EIPSimulator:
+    """Press a sensor pad onto meshes with MLS-MPM and read the tactile images.
+
+    Args:
+        sensor: pad geometry and material (default :class:`SensorConfig`).
+        press: press protocol (default :class:`PressConfig`).
+        device: torch device of the simulation.
+        compile: run the solver's no-grad steps with the fused ``torch.compile`` kernels (``MLSMPM(compile=...)``;
+            None -> the ``TVRECON_COMPILE`` environment variable). A speed option, deliberately not a config field:
+            readings equal the eager ones to float32 round-off, so it stays out of the data cache key.
+    """
+
+    def __init__(
+        self,
+        sensor: SensorConfig | None = None,
+        press: PressConfig | None = None,
+        device: torch.device | str = "cpu",
+        compile: bool | None = None,
+    ) -> None:
+        self.sensor = sensor if sensor is not None else SensorConfig()
+        self.cfg = press if press is not None else PressConfig()
+        check_instance(self.sensor, SensorConfig, "EIPSimulator sensor")
+        check_instance(self.cfg, PressConfig, "EIPSimulator press")
+        self.device = torch.device(device)
+        self.compile = compile
+
+    # ------------------------------------------------------------------ configuration
+    def _configs(self, overrides: dict) -> tuple[SensorConfig, PressConfig]:
+        """The sensor and press configs of one call: the simulator's with ``overrides``; a ``depth`` stop rule
+        raises ``max_depth`` to ``depth + 0.5`` cells when shorter (:func:`travel_for_depth`)."""
+        s_names, p_names = set(field_names(SensorConfig)), set(field_names(PressConfig))
+        check_known_keys(overrides, s_names | p_names, "press")
+        s = dataclasses.replace(self.sensor, **{k: v for k, v in overrides.items() if k in s_names})
+        p = dataclasses.replace(self.cfg, **{k: v for k, v in overrides.items() if k in p_names})
+        return s, travel_for_depth(p)
+
+    @staticmethod
+    def wave_speed(sensor: SensorConfig) -> float:
+        """Elastic P-wave speed sqrt((lambda + 2 mu) / rho) in domain units / s."""
+        return p_wave_speed(_scalar(sensor.E), _scalar(sensor.nu), float(sensor.rho))
+
+    def _mpm_config(self, s: SensorConfig, p: PressConfig) -> MPMConfig:
+        cfg = MPMConfig(
+            n_grid=int(p.n_grid),
+            dt=p.dt,
+            E=s.E,
+            nu=s.nu,
+            rho=float(s.rho),
+            friction=float(p.friction),
+            damping=s.damping,
+            contact=p.contact,
+        )
+        if cfg.dt is None:
+            probe = MPMConfig(n_grid=int(p.n_grid), E=_scalar(s.E), nu=_scalar(s.nu), rho=float(s.rho))
+            cfg.dt = float(cfl_dt(probe))
+        return cfg
+
+    # ------------------------------------------------------------------ scene set-up
+    def _setup(self, mesh: trimesh.Trimesh, position, direction, s: SensorConfig, p: PressConfig):
+        """One touch's :class:`~tvrecon.sim.press.placement.Placement` (frame, touch point, collider)."""
+        return placement.place_touch(mesh, position, direction, s, p, self.device)
+
+    # ------------------------------------------------------------------ public API
+    def touch_position(self, mesh: trimesh.Trimesh, direction, **overrides) -> Tensor:
+        """A touch point the pad reaches from outside along ``direction``: the placement when none is given.
+
+        The pad's footprint (its contact-layer particles, in the press frame) is centred on the line along
+        ``direction`` through the centre of the mesh's bounding box. A ray along ``direction`` from outside the
+        bounding box through each footprint particle meets the object's first surface; the touch
+        point is on the centre line at the highest of these hits (the first point the pad will touch), so the pad
+        starts clear of the object however much the surface rises under it. When every ray misses (e.g. the hole
+        of a torus), the footprint moves so that its most central particle is over the hit nearest the centre line
+        among rays cast over the whole bounding box (:func:`tvrecon.sim.press.placement.touch_position`). (The data
+        pipeline samples its own touches, see ``tvrecon.data.touches``.)
+
+        Args:
+            mesh: object in world coordinates. direction: (3,) world press direction (into the object).
+            **overrides: :class:`SensorConfig` / :class:`PressConfig` fields, as for :meth:`press` (the footprint
+                follows the pad's resolution, spacing, ``n_grid`` and ``domain_size``).
+        Returns:
+            (3,) float32 world point to pass as ``position``.
+        Raises:
+            ValueError: no ray along ``direction`` meets the mesh (e.g. a flat plane pressed along itself).
+        """
+        s, p = self._configs(overrides)
+        return placement.touch_position(mesh, direction, s, p)
+
+    def press(self, mesh: trimesh.Trimesh, position, direction, **overrides) -> TactileReading:
+        """Press the pad onto ``mesh`` at ``position`` along ``direction``.
+
+        Args:
+            mesh: object in world coordinates. Watertight, or open (an open box, a plane, a mesh with holes):
+                an open mesh is solid behind the first surface the pad meets (``MeshCollider(from_above=True)``).
+                A touch that travels past the surface found under the pad without feeling it (a part thinner
+                than the grid resolves) warns (RuntimeWarning) instead of returning a silent miss.
+            position: (3,) world point on or near the surface; None -> :meth:`touch_position` finds one.
+            direction: (3,) world press direction, pointing into the object (any non-zero length).
+            **overrides: any :class:`SensorConfig` or :class:`PressConfig` field for this call (E and nu may be
+                0-dim tensors requiring grad, ``speed`` too: the image is differentiable w.r.t. them).
+        Returns:
+            the :class:`TactileReading`.
+        """
+        if position is None:
+            position = self.touch_position(mesh, direction, **overrides)
+            reading = self.press_batch([mesh], [position], [direction], **overrides)[0]
+            if reading.steps == 0:  # the pad's rays met nothing at the touch point found for it
+                raise ValueError(
+                    f"the pad finds no surface under its footprint along the direction "
+                    f"{np.asarray(direction, dtype=float).tolist()}: the object is thinner than the pad's particle "
+                    "spacing seen along it (e.g. a sheet pressed on its edge). Choose another direction, give a "
+                    "position, or raise n_grid"
+                )
+            return reading
+        return self.press_batch([mesh], [position], [direction], **overrides)[0]
+
+    def press_batch(
+        self, meshes: Sequence[trimesh.Trimesh] | trimesh.Trimesh, positions, directions, **overrides
+    ) -> list[TactileReading]:
+        """Simulate T touches in one solver loop (one independent grid block per touch).
+
+        Each touch stops at its own terminal condition and then leaves the loop; results equal T calls of
+        :meth:`press` up to float round-off.
+
+        Args:
+            meshes: T meshes (or one mesh used for every touch), world coordinates.
+            positions: (T, 3) world points. directions: (T, 3) world press directions.
+        Returns:
+            T :class:`TactileReading`.
+        """
+        s, p = self._configs(overrides)
+        pos = (
+            torch.as_tensor(np.asarray(positions, dtype=np.float32)) if not isinstance(positions, Tensor) else positions
+        )
+        dirs = (
+            torch.as_tensor(np.asarray(directions, dtype=np.float32))
+            if not isinstance(directions, Tensor)
+            else directions
+        )
+        check_shape(pos, "(T, 3)", "positions")
+        if dirs.shape != pos.shape:
+            raise ValueError(
+                f"directions must have shape (T, 3) like positions {tuple(pos.shape)}, got {tuple(dirs.shape)}"
+            )
+        T = pos.shape[0]
+        if isinstance(meshes, trimesh.Trimesh):
+            meshes = [meshes] * T
+        if len(meshes) != T:
+            raise ValueError(f"expected {T} meshes (one per touch) or a single mesh, got {len(meshes)}")
+        touches = [self._setup(m, pos[t], dirs[t], s, p) for t, m in enumerate(meshes)]
+        return self._run(touches, s, p)
+
+    # ------------------------------------------------------------------ simulation loop
+    def _run(self, touches: list[placement.Placement], s: SensorConfig, p: PressConfig) -> list[TactileReading]:
+        """Step the placed touches together until each is done (:class:`~tvrecon.sim.press.loop.PressLoop`)."""
+        mcfg = self._mpm_config(s, p)
+        speed = p.speed if p.speed is not None else float(p.speed_fraction) * self.wave_speed(s)
+        return PressLoop(s, p, mcfg, speed, self.device, compile=self.compile).run(touches)
