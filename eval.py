@@ -36,6 +36,7 @@ from tvrecon.report.run import (  # noqa: E402
 from tvrecon.report.tables import data_protocol  # noqa: E402
 from tvrecon.utils.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
+from tvrecon.utils.moved_targets import upgrade_targets  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -101,6 +102,11 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         )
     state = load_checkpoint(ckpt)  # plain tensors and hparams only; a corrupt file is named before any work
     run_cfg = OmegaConf.load(cfg_path)
+    moved = upgrade_targets(run_cfg)  # a run of an earlier layout names modules that have moved since
+    if moved:
+        log.info(
+            f"{cfg_path}: {len(moved)} _target_ of an earlier release rewritten, e.g. {moved[0][0]} -> {moved[0][1]}"
+        )
     with open_dict(run_cfg):
         run_cfg.paths = OmegaConf.create(OmegaConf.to_container(cfg.paths, resolve=True))
         run_cfg.paths.output_dir = str(out_dir)
