@@ -9,13 +9,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 mujoco = pytest.importorskip("mujoco")
 
 from tvrecon.robot.mujoco_camera import RendererUnavailable, depth_to_world  # noqa: E402
-from tvrecon.robot.mujoco_pick_place import (  # noqa: E402
-    MujocoPickPlaceConfig,
-    _yaw_for,
-    resolve_object_mesh,
-    run_mujoco_pick_place,
-)
+from tvrecon.robot.mujoco_pick_place import run_mujoco_pick_place  # noqa: E402
+from tvrecon.robot.mujoco_pick_place_config import MujocoPickPlaceConfig, resolve_object_mesh  # noqa: E402
 from tvrecon.robot.mujoco_scene import MAX_OPENING, MujocoScene, look_at_xyaxes  # noqa: E402
+from tvrecon.robot.mujoco_task import yaw_for  # noqa: E402
 from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 
 
@@ -44,7 +41,7 @@ def test_depth_back_projection_and_camera_axes() -> None:
 
 def test_yaw_and_objects() -> None:
     for c in ([0.0, 1.0], [1.0, 0.0], [0.6, -0.8], [-0.6, -0.8]):
-        yaw = _yaw_for(np.array(c))
+        yaw = yaw_for(np.array(c))
         y_axis = np.array([-np.sin(yaw), np.cos(yaw)])
         assert abs(abs(y_axis @ np.array(c)) - 1.0) < 1e-9 and abs(yaw) <= np.pi / 2 + 1e-9
     pybullet_data = pytest.importorskip("pybullet_data")
