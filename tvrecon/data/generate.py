@@ -17,6 +17,22 @@ pays on large presets only); everything else is a Hydra override of the data con
 Under a launcher that sets ``RANK``/``LOCAL_RANK`` and ``WORLD_SIZE`` (Lightning, torchrun, a cluster array job),
 each rank takes its own share of the shard, so a cluster generates in parallel.
 
+Shards as the jobs of a Hydra launcher: the same command with ``--multirun`` (``-m``) and a list of shards runs one job
+per shard (``tvrecon/data/generate_launcher.py``, ``configs/generate.yaml``; job folders in
+``logs/generate/multirun/<time>``)::
+
+    # local processes (hydra-joblib-launcher, in the dev extra): n_jobs x workers processes in all
+    python -m tvrecon.data.generate --multirun preset=small shard=0/4,1/4,2/4,3/4 workers=1 \
+        hydra/launcher=joblib hydra.launcher.n_jobs=2
+    # one SLURM job per shard (pip install -e '.[cluster]': hydra-submitit-launcher)
+    python -m tvrecon.data.generate --multirun preset=paper shard=$(seq -s, -f '%g/16' 0 15) workers=8 \
+        hydra/launcher=submitit_slurm hydra.launcher.partition=cpu hydra.launcher.cpus_per_task=8 \
+        hydra.launcher.timeout_min=240
+
+``preset``, ``splits``, ``workers``, ``shard`` and ``compile`` can be swept (``a,b``); data overrides are passed
+unchanged to every job. The shards of all jobs write exactly the cache entries of a single-process run, and each job
+skips the items already cached: rerun the same command after a job failed or hit its time limit.
+
 Each worker process runs one torch thread; an item's touches are simulated in one ``press_batch`` call. Items
 already in the cache (and readable) are skipped, so an interrupted run resumes where it stopped. The progress bar
 counts touches (touches per second and ETA); the final line reports throughput and disk use.
@@ -46,10 +62,12 @@ from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.touch_report import contact_report
 from tvrecon.utils.cli_errors import RESUME_HINT
 
-__all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "parse_shard", "main"]
+__all__ = ["GenerateStats", "OPTION_KEYS", "WorkerDied", "pregenerate", "shard_indices", "parse_shard", "main"]
 
 log = logging.getLogger(__name__)
 
+#: the ``key=value`` arguments of the command itself; every other one is an override of the data config
+OPTION_KEYS = ("preset", "splits", "workers", "shard", "compile")
 #: the environment variable that makes every ``EIPSimulator`` of this process and its workers use the fused kernels
 COMPILE_ENV = "TVRECON_COMPILE"
 
@@ -273,9 +291,11 @@ def _parse(argv: Sequence[str]) -> tuple[dict[str, str], list[str]]:
             opts["shard"] = args.pop(0)
         elif a.startswith("--shard="):
             opts["shard"] = a.split("=", 1)[1]
-        elif "=" in a and a.split("=", 1)[0] in ("preset", "splits", "workers", "shard", "compile"):
+        elif "=" in a and a.split("=", 1)[0] in OPTION_KEYS:
             k, v = a.split("=", 1)
             opts[k] = v
+        elif a.split("=", 1)[0].lstrip("+~").startswith(("hydra.", "hydra/")):  # else ignored by compose: say so
+            raise ValueError(f"{a!r} is a Hydra setting: it takes effect with --multirun only (see --help)")
         elif "=" in a:
             overrides.append(a)
         else:
@@ -284,9 +304,14 @@ def _parse(argv: Sequence[str]) -> tuple[dict[str, str], list[str]]:
 
 
 def main(argv: Sequence[str] | None = None) -> list[GenerateStats]:
-    """CLI entry point; returns the stats of every split generated."""
+    """CLI entry point; returns the stats of every split generated ([] with ``--multirun``: the jobs print theirs)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    from tvrecon.data.generate_launcher import is_multirun, multirun
+
+    if is_multirun(args):  # the shards as the jobs of a Hydra launcher; each job calls main without --multirun
+        return multirun(args)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    opts, overrides = _parse(sys.argv[1:] if argv is None else argv)
+    opts, overrides = _parse(args)
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.getsignal(signal.SIGTERM) if in_main else None
     if in_main:  # SIGTERM -> SystemExit, so the pool's context manager stops its workers
@@ -333,15 +358,16 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
     print(f"cache: {Path(cache).expanduser().resolve() if cache else 'disabled (cache_dir=null)'}", flush=True)
     for name in splits:
         ds = dm.make_dataset(name)
-        st = pregenerate(ds, workers=workers, shard=shard, desc=name)
+        label = name if shard == (0, 1) else f"{name} shard {shard[0]}/{shard[1]}"  # jobs of a multirun interleave
+        st = pregenerate(ds, workers=workers, shard=shard, desc=label)
         results.append(st)
         print(
-            f"[{name}] {st.items} items in shard, {st.skipped} cached, {st.generated} generated: {st.touches} touches "
+            f"[{label}] {st.items} items in shard, {st.skipped} cached, {st.generated} generated: {st.touches} touches "
             f"in {st.seconds:.1f} s = {st.touches_per_second:.2f} touches/s; cache {st.bytes_written / 2**20:.2f} MiB "
             f"= {st.bytes_per_1000 / 2**20:.1f} MiB per 1000 samples ({Path(str(ds.cache.root)).resolve()})",
             flush=True,
         )
-        print(f"[{name}] {contact_report(ds).line()}", flush=True)  # blank touches per class (thin parts)
+        print(f"[{label}] {contact_report(ds).line()}", flush=True)  # blank touches per class (thin parts)
     return results
 
 
