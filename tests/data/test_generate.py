@@ -4,7 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from tvrecon.data.generate import main, parse_shard, pregenerate, shard_indices
+from tvrecon.data.generate import main, pregenerate, shard_indices
+from tvrecon.data.generate_args import parse_shard
 from tvrecon.data.presets import compose_preset
 
 ARGS = [

@@ -58,16 +58,15 @@ from tqdm.auto import tqdm
 
 from tvrecon.data.cache import cache_key
 from tvrecon.data.cache_housekeeping import remove_stale_tmp
+from tvrecon.data.generate_args import OPTION_KEYS, parse_shard
 from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.touch_report import contact_report
 from tvrecon.utils.cli_errors import RESUME_HINT
 
-__all__ = ["GenerateStats", "OPTION_KEYS", "WorkerDied", "pregenerate", "shard_indices", "parse_shard", "main"]
+__all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "main"]
 
 log = logging.getLogger(__name__)
 
-#: the ``key=value`` arguments of the command itself; every other one is an override of the data config
-OPTION_KEYS = ("preset", "splits", "workers", "shard", "compile")
 #: the environment variable that makes every ``EIPSimulator`` of this process and its workers use the fused kernels
 COMPILE_ENV = "TVRECON_COMPILE"
 
@@ -90,17 +89,6 @@ class GenerateStats:
     @property
     def bytes_per_1000(self) -> float:
         return 1000.0 * self.bytes_written / self.items if self.items else 0.0
-
-
-def parse_shard(text: str) -> tuple[int, int]:
-    """``"i/n"`` -> (i, n) with 0 <= i < n; ValueError otherwise."""
-    try:
-        i, n = (int(s) for s in str(text).split("/"))
-    except ValueError:
-        raise ValueError(f"shard must look like i/n (e.g. 0/4), got {text!r}") from None
-    if not (n >= 1 and 0 <= i < n):
-        raise ValueError(f"shard i/n needs n >= 1 and 0 <= i < n, got {text!r}")
-    return i, n
 
 
 def _rank_world() -> tuple[int, int]:
@@ -309,7 +297,7 @@ def main(argv: Sequence[str] | None = None) -> list[GenerateStats]:
     from tvrecon.data.generate_launcher import is_multirun, multirun
 
     if is_multirun(args):  # the shards as the jobs of a Hydra launcher; each job calls main without --multirun
-        return multirun(args)
+        return multirun(args, run=main, usage=__doc__ or "")
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     opts, overrides = _parse(args)
     in_main = threading.current_thread() is threading.main_thread()

@@ -21,17 +21,17 @@ import importlib.util
 import os
 import re
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
+from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from tvrecon.data.generate import OPTION_KEYS, parse_shard  # the app's keys: the command's own (they can be swept)
+from tvrecon.data.generate_args import OPTION_KEYS, parse_shard  # the app's keys: the command's own (swept)
 from tvrecon.data.presets import PROJECT_ROOT, preset_names
 
-if TYPE_CHECKING:
-    from tvrecon.data.generate import GenerateStats
+#: the single-process command a job runs (``tvrecon.data.generate.main``): argv -> its stats
+Run = Callable[[list[str]], list[Any]]
 
 __all__ = ["APP_CONFIG_DIR", "MULTIRUN_FLAGS", "hydra_arguments", "is_multirun", "job_arguments", "multirun", "run_job"]
 
@@ -98,7 +98,7 @@ def _quote(text: str) -> str:
     return f"'{text}'"
 
 
-def hydra_arguments(argv: Sequence[str]) -> list[str]:
+def hydra_arguments(argv: Sequence[str], usage: str = "") -> list[str]:
     """The Hydra command line (for ``configs/generate.yaml``) of a generate ``--multirun`` command line.
 
     Raises:
@@ -113,9 +113,7 @@ def hydra_arguments(argv: Sequence[str]) -> list[str]:
         if a in MULTIRUN_FLAGS:
             continue
         if a in ("-h", "--help"):
-            from tvrecon.data import generate
-
-            print(generate.__doc__)
+            print(usage)
             raise SystemExit(0)
         if a == "--shard":
             if not args:
@@ -178,15 +176,13 @@ def _outside_hydra_job() -> Iterator[None]:
             GlobalHydra.instance().initialize(hydra)
 
 
-def run_job(cfg: DictConfig) -> list[GenerateStats]:
-    """Hydra's task function: generate this job's shard (what the single-process command does)."""
-    from tvrecon.data.generate import main
-
+def run_job(cfg: DictConfig, run: Run) -> list[Any]:
+    """Hydra's task function: generate this job's shard with ``run``, the single-process command."""
     with _outside_hydra_job():
-        return main(job_arguments(cfg))
+        return run(job_arguments(cfg))
 
 
-def multirun(argv: Sequence[str]) -> list[GenerateStats]:
+def multirun(argv: Sequence[str], run: Run, usage: str = "") -> list[Any]:
     """Run a generate ``--multirun`` command line through Hydra; returns [] (each job prints its own stats).
 
     Hydra re-raises the error of the first failed job (``HYDRA_FULL_ERROR=1`` while it runs) after naming its
@@ -195,14 +191,16 @@ def multirun(argv: Sequence[str]) -> list[GenerateStats]:
     """
     import hydra
 
-    args = hydra_arguments(argv)
+    args = hydra_arguments(argv, usage)
     saved_argv = sys.argv
     saved_env = {k: os.environ.get(k) for k in ("HYDRA_FULL_ERROR", "PROJECT_ROOT")}
     sys.argv = [saved_argv[0] if saved_argv else "generate", *args]
     os.environ["HYDRA_FULL_ERROR"] = "1"
     os.environ.setdefault("PROJECT_ROOT", str(PROJECT_ROOT))
     try:
-        app = hydra.main(version_base="1.3", config_path=str(APP_CONFIG_DIR), config_name="generate")(run_job)
+        app = hydra.main(version_base="1.3", config_path=str(APP_CONFIG_DIR), config_name="generate")(
+            lambda cfg: run_job(cfg, run)
+        )
         app()
     finally:
         sys.argv = saved_argv

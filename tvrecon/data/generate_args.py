@@ -1,0 +1,20 @@
+"""The arguments of ``python -m tvrecon.data.generate`` that are the command's own (shared by the single-process
+command and its ``--multirun`` launcher, :mod:`tvrecon.data.generate_launcher`)."""
+
+from __future__ import annotations
+
+__all__ = ["OPTION_KEYS", "parse_shard"]
+
+#: the ``key=value`` arguments of the command itself; every other one is an override of the data config
+OPTION_KEYS = ("preset", "splits", "workers", "shard", "compile")
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"i/n"`` -> (i, n) with 0 <= i < n; ValueError otherwise."""
+    try:
+        i, n = (int(s) for s in str(text).split("/"))
+    except ValueError:
+        raise ValueError(f"shard must look like i/n (e.g. 0/4), got {text!r}") from None
+    if not (n >= 1 and 0 <= i < n):
+        raise ValueError(f"shard i/n needs n >= 1 and 0 <= i < n, got {text!r}")
+    return i, n
