@@ -22,6 +22,7 @@ __all__ = [
     "PlaneCollider",
     "MeshCollider",
     "OPEN_SHELL_CELLS",
+    "unit_or_up",
 ]
 
 #: Half-thickness, in grid cells, of the shell an open (non-watertight) mesh is given by ``MeshCollider`` without
@@ -348,7 +349,7 @@ class MeshCollider:
     def normal(self, points: Tensor) -> Tensor:
         """(N, 3) -> (N, 3) unit outward normal (interpolated sdf gradient)."""
         _check_points(points)
-        return _unit_or_up(self._lookup(self.node_normal, points))
+        return unit_or_up(self._lookup(self.node_normal, points))
 
     def sdf_normal(self, points: Tensor) -> tuple[Tensor, Tensor]:
         """``(sdf(points), normal(points))`` from one trilinear lookup of both tables (the same values, bit for bit;
@@ -358,7 +359,7 @@ class MeshCollider:
         if table is None:
             table = self._sdf_normal_table = torch.cat([self.node_sdf[..., None], self.node_normal], -1)  # (X,Y,Z,4)
         both = self._lookup(table, points)
-        return self._plus_outside(both[:, 0], points), _unit_or_up(both[:, 1:])
+        return self._plus_outside(both[:, 0], points), unit_or_up(both[:, 1:])
 
     def _plus_outside(self, d: Tensor, points: Tensor) -> Tensor:
         """Interpolated sdf ``d`` (N,) plus the distance of the (N, 3) points to the region box (0 inside it)."""
@@ -366,7 +367,7 @@ class MeshCollider:
         return d + (torch.clamp(lo - points, min=0) + torch.clamp(points - hi, min=0)).norm(dim=1)
 
 
-def _unit_or_up(n: Tensor) -> Tensor:
+def unit_or_up(n: Tensor) -> Tensor:
     """(N, 3) vectors scaled to unit length; +z where a vector is (near) zero."""
     nn = n.norm(dim=1, keepdim=True)
     up = torch.zeros_like(n)

@@ -150,16 +150,19 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
         X_new = 0.5 * (gs * Xa + inv_t / gs)
         delta = (X_new - Xa).detach().abs().amax(0)  # (Pa,)
         X = X_new if active is None else X.index_copy(1, active, X_new)
-        if not bool(torch.isfinite(delta).all()):
+        busy = delta >= stop
+        # one host read: the non-finite count (NaN and inf are never < inf) and the count still iterating
+        n_bad, n_busy = torch.stack([(~(delta < math.inf)).sum(), busy.sum()]).tolist()
+        if n_bad:
             raise FloatingPointError(
                 "polar decomposition of a singular or non-finite deformation gradient F: the simulation became "
                 "unstable; reduce dt / hand speed, increase n_grid"
             )
-        busy = delta >= stop
-        n_busy = int(busy.sum())
         if n_busy == 0:
             break
-        if n_busy < 0.5 * busy.numel():  # keep iterating only the particles that have not converged
+        # keep iterating only the particles that have not converged, on the CPU (a GPU iterates them all: the
+        # compaction would cost a host sync, the extra particles almost nothing)
+        if n_busy < 0.5 * busy.numel() and X.device.type == "cpu":
             sel = busy.nonzero()[:, 0]
             active = sel if active is None else active[sel]
     return X.T.reshape(P, 3, 3)

@@ -38,12 +38,14 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import Tensor
 
-from tvrecon.sim.bodies.colliders import Collider
+from tvrecon.sim.bodies.colliders import Collider, MeshCollider
+from tvrecon.sim.bodies.mesh_stack import MeshStack
 from tvrecon.sim.mpm.grid import Stencil, stencil_offsets
 from tvrecon.sim.mpm.state import ParticleState
 
 __all__ = [
     "contact_passes",
+    "MeshStackCache",
     "contact_velocity",
     "near_surface",
     "particle_contact_grid",
@@ -110,16 +112,27 @@ def contact_velocity(
 
 
 def near_surface(
-    x: Tensor, colliders: Sequence[Collider | None], scenes: Sequence[slice | Tensor], reach: float
+    x: Tensor,
+    colliders: Sequence[Collider | None],
+    scenes: Sequence[slice | Tensor],
+    reach: float,
+    batch: Tensor | None = None,
+    stack: MeshStackCache | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The particles within ``reach`` of their scene's body (the only ones a contact can touch this step).
+    """The particles that may be within ``reach`` of their scene's body (the only ones a contact can touch this step).
 
     Args:
         x: (P, 3) positions. colliders: one collider (or None) per scene. scenes: the particles of each scene
             (:func:`scene_slices`). reach: distance (domain units).
+        batch: (P,) int64 scene of each particle (None: one scene), for the one-pass search of mesh colliders.
+        stack: where the stacked tables of the last colliders are kept between steps (None: the loop over scenes).
     Returns:
         their (K,) int64 particle indices, (K,) int64 scene indices, (K,) signed distances and (K, 3) unit normals.
+        A particle beyond ``reach`` may be among them with its distance set to +inf (:func:`contact_velocity` leaves
+        it as it is, exactly): that saves a host sync per step.
     """
+    if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
+        return _near_stacked(x, colliders, batch, reach, stack)
     found: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
     for b, col in enumerate(colliders):
         if col is None:
@@ -148,6 +161,35 @@ def near_surface(
         e = torch.zeros(0, dtype=torch.int64, device=x.device)
         return e, e, x.new_zeros(0), x.new_zeros(0, 3)
     return tuple(torch.cat(t) for t in zip(*found))  # type: ignore[return-value]
+
+
+class MeshStackCache:
+    """The :class:`~tvrecon.sim.bodies.mesh_stack.MeshStack` of the last step's colliders (a press asks the same
+    colliders every step until a touch finishes)."""
+
+    def __init__(self) -> None:
+        self.stack: MeshStack | None = None
+
+    def get(self, colliders: Sequence[MeshCollider], device: torch.device) -> MeshStack:
+        if self.stack is None or not self.stack.matches(colliders, device):
+            self.stack = MeshStack(colliders, device)
+        return self.stack
+
+
+def _near_stacked(
+    x: Tensor, colliders: Sequence[MeshCollider], batch: Tensor | None, reach: float, cache: MeshStackCache
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """:func:`near_surface` of B mesh colliders in one pass: one prefilter of every particle in its scene's table, one
+    compaction (the step's only host sync here), one lookup; the particles of the prefilter beyond ``reach`` keep a
+    distance of +inf instead of a second compaction."""
+    stack = cache.get(colliders, x.device)
+    scene = torch.zeros(x.shape[0], dtype=torch.int64, device=x.device) if batch is None else batch
+    cand = torch.nonzero(stack.near(x.detach(), scene, reach)).flatten()  # (K,)
+    scene = scene[cand]
+    phi, n = stack.sdf_normal(x[cand], scene)
+    far = ~(phi.detach() < reach)  # NaN too, as the loop's compaction drops it
+    phi = torch.where(far, torch.full_like(phi, math.inf), phi)
+    return cand, scene, phi.to(x.dtype), n.to(x.dtype)
 
 
 def stencil_nodes(st: Stencil, particles: Tensor | None = None) -> Tensor:
@@ -215,6 +257,7 @@ def particle_contact_grid(
     dx: float,
     friction: float,
     kernels: Callable[..., tuple[Tensor, Tensor]] | None = None,
+    stack: MeshStackCache | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """The rigid bodies' impulses on the particles, applied through the grid velocities ``gv`` (N, 3) before G2P
     (paper eq. 8-11). ``st``: the step's stencil (its ``w`` (27, P), ``lin`` and ``D``); ``node_mass``: the (N,)
@@ -239,13 +282,14 @@ def particle_contact_grid(
     iterations); what the last one leaves lets a particle sink a little, corrected at the next steps.
 
     ``kernels``: the compiled backend's ``CompiledKernels``, whose ``"contact"`` kernel runs :func:`contact_passes`
-    fused (float32 round-off apart); None: eager. The eager step passes ``node_mass`` with its autograd graph (the
-    impulse share ``w_ip J_p / m_i`` depends on the positions through ``m_i`` too); the no-grad compiled step passes
-    the detached grid mass of its transfer.
+    fused (float32 round-off apart); None: eager. ``stack``: the solver's :class:`MeshStackCache`, so that mesh
+    colliders are searched in one pass over all scenes (None: scene by scene). The eager step passes
+    ``node_mass`` with its autograd graph (the impulse share ``w_ip J_p / m_i`` depends on the positions through
+    ``m_i`` too); the no-grad compiled step passes the detached grid mass of its transfer.
     """
     P = state.x.shape[0]
     mu_f = friction
-    cand, scene, phi, n = near_surface(state.x, colliders, scene_slices(state.batch, B, block), dx)
+    cand, scene, phi, n = near_surface(state.x, colliders, scene_slices(state.batch, B, block), dx, state.batch, stack)
     K = cand.numel()
     total = gv.new_zeros(K, 3)
     if K:

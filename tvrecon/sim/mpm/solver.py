@@ -38,7 +38,7 @@ from tvrecon.sim.mpm.grid import (
     stencil_offsets,
 )
 from tvrecon.sim.mpm.materials import fixed_corotated_kirchhoff, lame_parameters, polar_decomposition
-from tvrecon.sim.mpm.particle_contact import particle_contact_grid
+from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
 from tvrecon.sim.mpm.state import CONTACT_MODES, MPMConfig, ParticleState, cfl_dt
 
 __all__ = ["MLSMPM"]
@@ -60,6 +60,9 @@ class MLSMPM:
     (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;
     :meth:`last_particle_force` shares that force out over the particles.
     """
+
+    #: particles per cache-sized block of the stencil passes (no-grad steps on the CPU); 0 = off
+    chunk_size: int = 4096
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu", compile: bool | None = None) -> None:
         if cfg.n_grid < 4:
@@ -83,7 +86,6 @@ class MLSMPM:
             self.dt = float(cfg.dt)
         self.last_force: Tensor = torch.zeros(1, 3, device=self.device)
         self._last_transfer: Transfer | None = None  # the last step's transfer, for last_particle_force
-        self.chunk_size = 4096  # particles per cache-sized block of the stencil passes (no-grad path); 0 = off
         # particles per compiled P2G call (compile=True): its (108, chunk) rows and their transposed copy stay in a
         # 1 MiB L2 at 2048 (paper touches ~2-8% faster than 4096 in one process; 1024 pays more calls); 0 = one call
         self.compiled_chunk_size = 2048
@@ -95,6 +97,7 @@ class MLSMPM:
         self._fields = ColliderFields()  # the compiled step's collider sdf on the block grid, kept between steps
         # the particle contact's (P, 3) force per particle of the last step (contact="particle")
         self._particle_contact_force: Tensor | None = None
+        self._mesh_stack = MeshStackCache()  # the particle contact's stacked mesh colliders, kept between steps
 
     @property
     def compiled(self) -> bool:
@@ -202,7 +205,8 @@ class MLSMPM:
             # grid[0]: the node mass with its graph (the transfer keeps it detached), so that d(1 / m_i)/dx reaches
             # autograd through the contact's impulse share w_ip J_p / m_i
             gv, self.last_force, self._particle_contact_force = particle_contact_grid(
-                state, st, gv, grid[0], colliders, hand_velocity, alpha, B, block, self.dt, self.dx, self.cfg.friction
+                state, st, gv, grid[0], colliders, hand_velocity, alpha, B, block, self.dt, self.dx, self.cfg.friction,
+                stack=self._mesh_stack,
             )
         else:
             gv = self._grid_update(grid, colliders, st)
@@ -222,7 +226,7 @@ class MLSMPM:
         o_int = self._constants(state.x.dtype, state.x.device)[2]
         out = fused_step(
             self._kernels, self._fields, state, colliders, hand_velocity, alpha, B, block,
-            self.cfg, self.dt, self.mu, self.lam, self.compiled_chunk_size, o_int,
+            self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(state.x.device), o_int, self._mesh_stack,
         )
         self.last_force, self._last_transfer = out.force, out.transfer
         if out.particle_force is not None:
@@ -241,7 +245,7 @@ class MLSMPM:
         fxt = fx.T.contiguous()  # (3, P)
         wa = torch.stack([0.5 * (1.5 - fxt) ** 2, 0.75 - (fxt - 1.0) ** 2, 0.5 * (fxt - 0.5) ** 2], 1)  # (axis, k, P)
         w = (wa[0][:, None, None] * wa[1][None, :, None] * wa[2][None, None, :]).reshape(27, P)  # o = (i, j, k)
-        return Stencil(fx, w, lo, lin, D, B * D[0] * D[1] * D[2], self._chunk(P))
+        return Stencil(fx, w, lo, lin, D, B * D[0] * D[1] * D[2], self._chunk(P, x.device))
 
     def _p2g(self, state: ParticleState, st: Stencil) -> Tensor:
         """Scatter mass and momentum to the grid (paper eq. 5 and 6): the (4, N) block grid of [m_i, (m v)_i]."""
@@ -376,8 +380,13 @@ class MLSMPM:
                 self._kernels = None  # warned once; eager from now on
         return share_node_force(self._last_transfer, mass, o_int)
 
-    def _chunk(self, P: int) -> int:
-        """Particles per chunk of the stencil passes: all at once under autograd, cache-sized blocks otherwise."""
-        if torch.is_grad_enabled() or self.chunk_size <= 0:
+    def _chunk(self, P: int, device: torch.device) -> int:
+        """Particles per chunk of the stencil passes: cache-sized blocks on the CPU without autograd, else all at once
+        (a GPU streams them in one launch; chunks would cost launches in proportion to the batch)."""
+        if torch.is_grad_enabled() or self.chunk_size <= 0 or device.type != "cpu":
             return P
         return self.chunk_size
+
+    def _compiled_chunk(self, device: torch.device) -> int:
+        """Particles per compiled P2G call: ``compiled_chunk_size`` on the CPU, all at once (0) elsewhere."""
+        return self.compiled_chunk_size if device.type == "cpu" else 0

@@ -28,7 +28,16 @@ from tvrecon.sim.mpm.state import MPMConfig, ParticleState
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.placement import Placement, touch_z
 from tvrecon.sim.press.reading import TactileReading
-from tvrecon.sim.press.stop_rules import StopCheck, criterion_missed, should_stop, stop_rules, terminal_chamfer
+from tvrecon.sim.press.stop_rules import (
+    StopCheck,
+    ThresholdRule,
+    criterion_missed,
+    rest_sq_sums,
+    rest_terms,
+    should_stop,
+    stop_rules,
+    terminal_chamfer,
+)
 from tvrecon.sim.sensor.forces import column_force_field
 from tvrecon.sim.sensor.pad import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice
 
@@ -157,6 +166,8 @@ class PressLoop:
         solver = MLSMPM(self.mcfg, device=dev, compile=self.compile)
         x0_contact = self.x0_contact = x_rest[:HW] / dx  # (HW, 3) cells
         lattice = (H, W, float(s.spacing))
+        # the threshold rule's bound of every touch, read with the step's one host read (StopCheck.memo)
+        rest = rest_terms(x0_contact, lattice) if any(isinstance(r, ThresholdRule) for r in self.rules) else None
         total = self.max_steps + int(p.release_steps)
         bar = tqdm(total=total * len(active), desc="EIP press", disable=not p.progress, leave=False)
         n = 0
@@ -177,14 +188,19 @@ class PressLoop:
                 state, collider=[touches[t].place.collider for t in active], hand_velocity=hv, alpha=alpha
             )
             xb = state.x.view(B, P, 3)
+            force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
             lo_hi = torch.aminmax(xb[:, :HW].detach())  # NaN propagates: one reduction instead of isfinite + all
-            if not (math.isfinite(lo_hi.min.item()) and math.isfinite(lo_hi.max.item())):
+            # one host read per step: the positions' range (divergence) and the pad forces (the stop rules)
+            parts = [torch.stack([lo_hi.min, lo_hi.max]), force[:, 2]]
+            if rest is not None:
+                parts.append(rest_sq_sums(xb[:, :HW].detach() / dx, rest))
+            host = torch.cat([t.double() for t in parts]).tolist()
+            fz, sq_sums = host[2 : 2 + B], host[2 + B :]
+            if not (math.isfinite(host[0]) and math.isfinite(host[1])):
                 raise FloatingPointError(
                     f"simulation diverged at step {n} (non-finite particle positions): lower PressConfig.dt or speed, "
                     f"or raise damping; current dt={dt:.3g}, speed={_scalar(speed):.3g}, E={_scalar(s.E):.3g}"
                 )
-            force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
-            fz = force[:, 2].tolist()
             particle_force = None  # (B, P, 3), computed on the first stop of this step
             done_now = []
             for b, t in enumerate(active):
@@ -196,6 +212,8 @@ class PressLoop:
                     if p.record_every and tc.steps % int(p.record_every) == 0:
                         self._record(tc, xb[b])
                     check = StopCheck(xb[b, :HW] / dx, x0_contact, lattice)
+                    if sq_sums:
+                        check.memo["rest_sq_sum"] = sq_sums[b]
                     if should_stop(self.rules, tc, check):
                         img = self._image(xb[b, :HW], tc.disp)
                         # the threshold rule's exact value of this very layer, when it computed one (the same call)

@@ -106,7 +106,24 @@ def rest_terms(x0: Tensor, lattice: tuple[int, int, float]) -> tuple[Tensor, flo
     return b, float(d2.mean().sqrt())
 
 
-def chamfer_surely_below(x: Tensor, rest: tuple[Tensor, float], threshold: float) -> bool:
+def rest_sq_sums(x: Tensor, rest: tuple[Tensor, float]) -> Tensor:
+    """``sum_p |a_p - b_p|^2`` of :func:`chamfer_surely_below` for a batch of contact layers at once.
+
+    Args:
+        x: (B, N, 3) contact layers, in cells. rest: :func:`rest_terms` of their common rest layer.
+    Returns:
+        (B,) float64 sums (on ``x.device``), for ``StopCheck.memo["rest_sq_sum"]``: the press loop reads them with its
+        one host read per step instead of one read per touch.
+    """
+    b, _ = rest
+    a = (x - x.mean(1, keepdim=True)).detach().double()
+    e = a - b.to(a.device)
+    return (e * e).sum((1, 2))
+
+
+def chamfer_surely_below(
+    x: Tensor, rest: tuple[Tensor, float], threshold: float, sq_sum: float | None = None
+) -> bool:
     """True only when ``terminal_chamfer(x, x0, lattice) < threshold`` (False: undecided), with a few ops.
 
     With ``a`` and ``b`` the centred layers :func:`terminal_chamfer` builds and ``r`` the root mean square of ``|a_p -
@@ -118,12 +135,16 @@ def chamfer_surely_below(x: Tensor, rest: tuple[Tensor, float], threshold: float
 
     Args:
         x: (N, 3) contact layer now, in cells. rest: :func:`rest_terms` of the rest layer. threshold: squared cells.
+        sq_sum: ``sum_p |a_p - b_p|^2`` when the caller computed it (:func:`rest_sq_sums`), else computed here. It only
+            decides whether this shortcut answers: a value off by round-off can only send the caller to the exact
+            test, which gives the same answer.
     """
     b, beta = rest
-    a = (x - x.mean(0)).detach().double()
-    e = a - b.to(a.device)
-    r = float((e * e).sum()) / len(e)
-    r = r**0.5
+    if sq_sum is None:
+        a = (x - x.mean(0)).detach().double()
+        e = a - b.to(a.device)
+        sq_sum = float((e * e).sum())
+    r = (sq_sum / len(x)) ** 0.5
     return (r + beta) ** 2 + r * r < float(threshold) * (1.0 - 1e-6)
 
 
@@ -149,7 +170,8 @@ def chamfer_reaches(
         rest: :func:`rest_terms` of ``x0`` when the caller keeps them (computed here otherwise).
         memo: when given, the exact :func:`terminal_chamfer` value goes to ``memo["chamfer"]`` if it was computed.
     """
-    if chamfer_surely_below(x, rest_terms(x0, lattice) if rest is None else rest, threshold):
+    sq_sum = None if memo is None else memo.get("rest_sq_sum")
+    if chamfer_surely_below(x, rest_terms(x0, lattice) if rest is None else rest, threshold, sq_sum):
         return False
     a = (x - x.mean(0)).detach()
     b = (x0 - x0.mean(0)).detach().to(a)
@@ -191,7 +213,8 @@ class StopCheck:
     """The contact layer after a step, for rules that look at the pad (cells; ``lattice`` = (H, W, spacing)).
 
     ``memo``: values a rule computed on the way that the caller may reuse (``"chamfer"``: the exact
-    :func:`terminal_chamfer` of this layer, when :class:`ThresholdRule` needed it).
+    :func:`terminal_chamfer` of this layer, when :class:`ThresholdRule` needed it), and values the caller computed
+    for the rules (``"rest_sq_sum"``: :func:`rest_sq_sums` of this layer).
     """
 
     contact_cells: Tensor

@@ -33,7 +33,7 @@ from tvrecon.sim.mpm.compiled.grid import ColliderFields
 from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
 from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed, share_node_force
 from tvrecon.sim.mpm.materials import polar_decomposition
-from tvrecon.sim.mpm.particle_contact import particle_contact_grid
+from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
 from tvrecon.sim.mpm.state import MPMConfig, ParticleState
 
 __all__ = ["CF_VIEWS", "FusedStep", "fused_step", "particle_force"]
@@ -104,11 +104,13 @@ def fused_step(
     lam: float | Tensor,
     chunk: int,
     o_int: Tensor,
+    stack: MeshStackCache | None = None,
 ) -> FusedStep:
     """One no-grad step with the compiled ``kernels``; the collider ``fields`` remember the colliders' sdf on the
     block grid between steps. ``state`` ... ``block`` as :meth:`tvrecon.sim.mpm.solver.MLSMPM._step`; ``cfg``: the
     solver's config (grid, damping, friction, contact), ``dt`` its step, ``mu`` / ``lam`` its Lame parameters,
-    ``chunk`` the particles per compiled P2G call (0 = all), ``o_int`` the (27, 3) int64 stencil offsets."""
+    ``chunk`` the particles per compiled P2G call (0 = all), ``o_int`` the (27, 3) int64 stencil offsets, ``stack``
+    the solver's stacked mesh colliders of the particle contact (None: searched scene by scene)."""
     k = kernels
     x = state.x
     P = x.shape[0]
@@ -148,7 +150,7 @@ def fused_step(
     pforce = None
     if cfg.contact == "particle":  # opt-in: the grid without colliders, then the eager particle contact
         gv, force, transfer, pforce = _particle_contact(
-            k, fields, state, G, st, colliders, hand_velocity, alpha, B, block, cfg, dt
+            k, fields, state, G, st, colliders, hand_velocity, alpha, B, block, cfg, dt, stack
         )
         gv = gv.contiguous()
     else:
@@ -181,6 +183,7 @@ def _particle_contact(
     block: int | None,
     cfg: MPMConfig,
     dt: float,
+    stack: MeshStackCache | None = None,
 ) -> tuple[Tensor, Tensor, Transfer, Tensor]:
     """The grid side of a compiled step with ``MPMConfig(contact="particle")``, in :meth:`MLSMPM._step`'s order: the
     compiled grid update without colliders (paper eq. 7), then
@@ -191,7 +194,7 @@ def _particle_contact(
     gv, _, transfer = _grid_update(kernels, fields, G, [None] * B, st, cfg, dt)
     gv, force, pforce = particle_contact_grid(
         state, st, gv.contiguous(), transfer.node_mass, colliders, hand_velocity, alpha, B, block,
-        dt, 1.0 / cfg.n_grid, cfg.friction, kernels,
+        dt, 1.0 / cfg.n_grid, cfg.friction, kernels, stack,
     )
     return gv, force, transfer, pforce
 
