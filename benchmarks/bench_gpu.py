@@ -2,6 +2,7 @@
 
     python benchmarks/bench_gpu.py                                   # CPU: batches 1,2,4,8, eager and compiled
     python benchmarks/bench_gpu.py --device cuda --out bench_gpu.json   # a GPU: batches 1 .. 1024 until memory runs out
+    python benchmarks/bench_gpu.py --device cuda --scenes bench --modes eager --batches 64 --profile 64  # + top ops
 
 Two scenes, both through the public press API (``EIPSimulator.press_batch``, one solver loop for B touches):
 
@@ -36,12 +37,10 @@ import resource
 import sys
 import time
 import warnings
-from collections import Counter
 from pathlib import Path
 
 import torch
 import trimesh
-from torch.utils._python_dispatch import TorchDispatchMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -50,36 +49,8 @@ from hydra.utils import instantiate  # noqa: E402
 from tvrecon.data.presets import compose_preset  # noqa: E402
 from tvrecon.data.touches import sample_touches  # noqa: E402
 from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
-
-# ops that only make a new view of existing memory: no kernel on a GPU
-VIEW_OPS = frozenset(
-    "view _unsafe_view alias as_strided slice select expand unsqueeze squeeze transpose t permute detach "
-    "split unbind chunk narrow diagonal reshape unflatten".split()
-)
-SYNC_OPS = ("_local_scalar_dense", "nonzero", "masked_select", "unique", "_unique", "unique_dim", "unique_consecutive")
-
-
-class OpCounter(TorchDispatchMode):
-    """Counts aten ops (by overload packet name) and the host-syncing ones among them."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.ops: Counter[str] = Counter()
-        self.syncs: Counter[str] = Counter()
-
-    def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # noqa: ANN001 (torch's signature)
-        name = func.overloadpacket.__name__
-        self.ops[name] += 1
-        if name in SYNC_OPS:
-            self.syncs[name] += 1
-        elif name == "repeat_interleave" and isinstance(args[0] if args else None, torch.Tensor) and len(args) > 1:
-            if isinstance(args[1], torch.Tensor):
-                self.syncs[name] += 1
-        elif name == "index" and any(
-            isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in (args[1] if len(args) > 1 else ()) or ()
-        ):
-            self.syncs["index(bool mask)"] += 1
-        return func(*args, **(kwargs or {}))
+from tvrecon.sim.mpm.solver import MLSMPM  # noqa: E402
+from tvrecon.utils.op_counter import per_step  # noqa: E402
 
 
 def paper_scene(device: str) -> tuple[SensorConfig, PressConfig, trimesh.Trimesh, torch.Tensor, torch.Tensor, dict]:
@@ -136,36 +107,37 @@ def run_one(sim: EIPSimulator, mesh, pos, dirs, strength: dict, b: int, device: 
     return _clock(device) - t0, readings
 
 
-def _counted(sim: EIPSimulator, mesh, pos, dirs, strength: dict, b: int, **limit) -> tuple[OpCounter, int]:
-    counter = OpCounter()
-    with counter:
-        readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength, **limit)
-    return counter, max(int(r.steps) for r in readings)
+def count_ops(
+    sensor, press, mesh, pos, dirs, strength: dict, b: int, device: torch.device, chunks: bool = True
+) -> dict:
+    """Aten ops and host syncs per loop step of one eager ``press_batch`` of ``b`` touches
+    (:func:`tvrecon.utils.op_counter.per_step`: the set-up and read-out, paid once per call, cancel).
 
-
-def count_ops(sensor, press, mesh, pos, dirs, strength: dict, b: int, device: torch.device) -> dict:
-    """Aten ops and host syncs per loop step of one eager ``press_batch`` of ``b`` touches.
-
-    Per step = (a whole press - the same press stopped after its first step) / (its steps - 1): the set-up (placement,
-    SDF, pad) and the read-out, paid once per call, cancel.
-    """
+    ``chunks=False`` counts the GPU's layout on the CPU: the stencil passes in one launch instead of cache-sized
+    particle chunks (``MLSMPM.chunk_size``; off on a GPU anyway)."""
     sim = EIPSimulator(sensor, press, device=device, compile=False)
     sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # warm caches (placement, SDF) like a real run
-    one, _ = _counted(sim, mesh, pos, dirs, strength, b, max_steps=1)
-    full, steps = _counted(sim, mesh, pos, dirs, strength, b)
-    n = max(steps - 1, 1)
-    ops = full.ops - one.ops
-    syncs = full.syncs - one.syncs
-    return {
-        "batch": b,
-        "loop_steps": steps,
-        "ops_per_step": sum(ops.values()) / n,
-        "launch_ops_per_step": sum(v for k, v in ops.items() if k not in VIEW_OPS) / n,
-        "syncs_per_step": sum(syncs.values()) / n,
-        "ops_per_call_outside_steps": sum(one.ops.values()) - sum(ops.values()) / n,
-        "syncs_by_op": {k: round(v / n, 2) for k, v in syncs.most_common()},
-        "top_ops": {k: round(v / n, 1) for k, v in ops.most_common(8)},
-    }
+
+    def run(max_steps: int | None) -> int:
+        limit = {} if max_steps is None else {"max_steps": max_steps}
+        readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength, **limit)
+        return max(int(r.steps) for r in readings)
+
+    saved = MLSMPM.chunk_size
+    MLSMPM.chunk_size = saved if chunks else 0
+    try:
+        return {"batch": b, "layout": "cpu chunks" if chunks and device.type == "cpu" else "one pass", **per_step(run)}
+    finally:
+        MLSMPM.chunk_size = saved
+
+
+def _write(path: Path | None, results: dict) -> None:
+    """Every figure so far to ``path`` (temp file, then rename): a run cut off by a time limit keeps its rows."""
+    if path is None:
+        return
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(results, indent=1))
+    tmp.replace(path)
 
 
 def main() -> None:
@@ -178,6 +150,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--count-batch", type=int, default=4, help="batch of the op/sync count (0: skip)")
     parser.add_argument("--out", type=Path, default=None, help="write every figure to this JSON file")
+    parser.add_argument(
+        "--profile", type=int, default=0, help="after the timings, profile one call of this batch (torch.profiler)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     warnings.simplefilter("ignore")  # thin-part contact warnings of the paper scene: not what is measured here
@@ -195,14 +170,17 @@ def main() -> None:
             f"n_grid {press.n_grid}, stop {strength or 'eq. 12 threshold'}"
         )
         if args.count_batch:
-            c = count_ops(sensor, press, mesh, pos, dirs, strength, args.count_batch, device)
-            results["counts"].append({"scene": scene, **c})
-            print(
-                f"  eager, batch {c['batch']}: {c['ops_per_step']:.0f} aten ops "
-                f"({c['launch_ops_per_step']:.0f} not views) and {c['syncs_per_step']:.1f} host syncs per step "
-                f"({c['loop_steps']} steps; {c['ops_per_call_outside_steps']:.0f} ops per call "
-                f"outside the steps); syncs {c['syncs_by_op']}; most ops {c['top_ops']}"
-            )
+            layouts = (True, False) if device.type == "cpu" else (True,)
+            for chunks in layouts:
+                c = count_ops(sensor, press, mesh, pos, dirs, strength, args.count_batch, device, chunks)
+                results["counts"].append({"scene": scene, **c})
+                _write(args.out, results)
+                print(
+                    f"  eager, batch {c['batch']}, {c['layout']}: {c['ops_per_step']:.0f} aten ops "
+                    f"({c['launch_ops_per_step']:.0f} not views) and {c['syncs_per_step']:.1f} host syncs per step "
+                    f"({c['steps']} steps; {c['ops_outside_steps']:.0f} ops per call outside the steps); "
+                    f"syncs {c['syncs_by_op']}; most ops {c['top_ops']}"
+                )
         print(
             f"  {'mode':9s} {'batch':>5s} {'first s':>8s} {'s/call':>8s} {'touches/s':>10s} {'p-steps/s':>10s} "
             f"{'steps':>6s} {'peak MiB':>9s}"
@@ -236,15 +214,28 @@ def main() -> None:
                     "peak_mib": _peak_mib(device),
                 }
                 results["runs"].append(row)
+                _write(args.out, results)
                 print(
                     f"  {mode:9s} {b:5d} {first:8.2f} {sec:8.2f} {row['touches_per_s']:10.2f} "
                     f"{row['particle_steps_per_s']:10.3g} {row['loop_steps']:6d} {row['peak_mib']:9.0f}"
                 )
+        if args.profile:
+            profile_call(EIPSimulator(sensor, press, device=device), mesh, pos, dirs, strength, args.profile, device)
     if args.out:
-        tmp = args.out.with_suffix(args.out.suffix + ".tmp")
-        tmp.write_text(json.dumps(results, indent=1))
-        tmp.replace(args.out)
         print(f"\nwrote {args.out}")
+
+
+def profile_call(sim: EIPSimulator, mesh, pos, dirs, strength: dict, b: int, device: torch.device) -> None:
+    """Print the ops that took the most device (CUDA) or CPU time in one eager ``press_batch`` of ``b`` touches."""
+    from torch.profiler import ProfilerActivity, profile
+
+    run_one(sim, mesh, pos, dirs, strength, b, device)  # warm
+    acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    with profile(activities=acts) as prof:
+        run_one(sim, mesh, pos, dirs, strength, b, device)
+    key = "cuda_time_total" if device.type == "cuda" else "cpu_time_total"
+    print(f"\n  profile of one eager call, batch {b}, by {key}:")
+    print(prof.key_averages().table(sort_by=key, row_limit=20))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,64 @@
+"""The press step's GPU shape, guarded on the CPU: aten ops and host syncs per step, counted with a
+``TorchDispatchMode`` (:mod:`tvrecon.utils.op_counter`), stay flat in the batch size and under a budget.
+
+Before the contact search and the stop checks were batched over touches, a batch of 4 paid 17.7 host syncs and
+1,800 ops per step, growing with every touch (2 syncs and ~100 ops per touch per step: the per-scene mesh lookups and
+the per-touch chamfer bound); on an H100 that made a press of 64 touches 33x slower than one (``bench_gpu.py``).
+"""
+
+import warnings
+
+import pytest
+import torch
+import trimesh
+
+from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig
+from tvrecon.sim.mpm.solver import MLSMPM
+from tvrecon.utils.op_counter import OpCounter, per_step
+
+#: host syncs per step of the eager press on the CPU (measured 5.9 to 6.9 at batches 2 to 6: the polar
+#: decomposition's convergence read (~1.9, one per Newton iteration, plus its CPU-only compaction), the block bounds,
+#: the grid speed check, the contact search's one compaction, the loop's one read of forces, stop bounds and
+#: divergence)
+SYNC_BUDGET = 7.5
+
+
+def _counts(batch: int, monkeypatch: pytest.MonkeyPatch) -> dict:
+    monkeypatch.setattr(MLSMPM, "chunk_size", 0)  # the GPU's layout: each stencil pass in one launch
+    sim = EIPSimulator(SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=64, domain_size=1.0))
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    pos = torch.tensor([[0.0, 0.0, 0.1]]).repeat(batch, 1)
+    dirs = torch.tensor([[0.0, 0.0, -1.0]]).repeat(batch, 1)
+    sim.press_batch(mesh, pos, dirs, max_steps=2)  # placement and tables cached, as in a real run
+
+    def run(max_steps: int | None) -> int:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            limit = {} if max_steps is None else {"max_steps": max_steps}
+            return max(int(r.steps) for r in sim.press_batch(mesh, pos, dirs, **limit))
+
+    return per_step(run)
+
+
+def test_syncs_and_ops_per_step_do_not_grow_with_the_batch(monkeypatch):
+    small, large = _counts(2, monkeypatch), _counts(6, monkeypatch)
+    assert small["steps"] > 10 and large["steps"] == small["steps"]
+    for c in (small, large):
+        assert c["syncs_per_step"] <= SYNC_BUDGET, c["syncs_by_op"]
+    assert large["syncs_per_step"] <= small["syncs_per_step"] + 0.5, (small["syncs_by_op"], large["syncs_by_op"])
+    # ops: the same launches whatever the batch (a loop over touches would add ~100 per touch per step)
+    assert large["launch_ops_per_step"] <= small["launch_ops_per_step"] + 20, (small["top_ops"], large["top_ops"])
+
+
+def test_op_counter_counts_syncs_and_restores_tolist():
+    t = torch.arange(6.0)
+    tolist = torch.Tensor.tolist
+    with OpCounter() as c:
+        (t * 2).sum().item()
+        torch.nonzero(t > 2)
+        t[t > 3]
+        t.tolist()
+    assert torch.Tensor.tolist is tolist
+    assert c.ops["mul"] == 1 and c.ops["sum"] == 1
+    assert c.syncs["_local_scalar_dense"] == 1 and c.syncs["nonzero"] == 1 and c.syncs["tolist"] == 1
+    assert c.syncs["index(bool mask)"] == 1

@@ -1,0 +1,98 @@
+"""Count the aten ops and host syncs a piece of torch code dispatches (what a GPU pays as launches and stalls).
+
+:class:`OpCounter` is a ``TorchDispatchMode``: every aten op dispatched inside it is counted by name, and the ones
+whose result the host must wait for are counted again as syncs: ``_local_scalar_dense`` (``.item()``, ``float(t)``,
+``bool(t)``), ``nonzero``, ``masked_select``, ``unique*``, ``repeat_interleave`` with tensor repeats, boolean-mask
+indexing, and ``Tensor.tolist`` (a copy to the host that dispatches no aten op on the CPU). It runs on the CPU, so CI
+guards the GPU shape of a loop without a GPU. :func:`per_step` turns two counted runs of a loop into counts per step.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+__all__ = ["SYNC_OPS", "VIEW_OPS", "OpCounter", "StepCounts", "per_step"]
+
+#: ops that only make a new view of existing memory: no kernel on a GPU
+VIEW_OPS = frozenset(
+    "view _unsafe_view alias as_strided slice select expand unsqueeze squeeze transpose t permute detach "
+    "split unbind chunk narrow diagonal reshape unflatten".split()
+)
+#: ops whose result the host waits for
+SYNC_OPS = frozenset(
+    ("_local_scalar_dense", "nonzero", "masked_select", "unique", "_unique", "unique_dim", "unique_consecutive")
+)
+
+
+class OpCounter(TorchDispatchMode):
+    """Counts aten ops (by overload packet name) in ``ops`` and the host-syncing ones among them in ``syncs``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ops: Counter[str] = Counter()
+        self.syncs: Counter[str] = Counter()
+        self._tolist: Callable[..., Any] | None = None
+
+    def __enter__(self) -> OpCounter:
+        tolist = self._tolist = torch.Tensor.tolist
+        syncs = self.syncs
+
+        def counted_tolist(t: torch.Tensor) -> Any:
+            if t.numel():
+                syncs["tolist"] += 1
+            return tolist(t)
+
+        torch.Tensor.tolist = counted_tolist  # type: ignore[method-assign]
+        return super().__enter__()
+
+    def __exit__(self, *exc: object) -> None:
+        torch.Tensor.tolist = self._tolist  # type: ignore[method-assign]
+        super().__exit__(*exc)
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # noqa: ANN001, ANN204 (torch's signature)
+        name = func.overloadpacket.__name__
+        self.ops[name] += 1
+        if name in SYNC_OPS:
+            self.syncs[name] += 1
+        elif name == "repeat_interleave" and len(args) > 1 and isinstance(args[1], torch.Tensor):
+            self.syncs[name] += 1
+        elif name == "index" and any(
+            isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in (args[1] if len(args) > 1 else ()) or ()
+        ):
+            self.syncs["index(bool mask)"] += 1
+        return func(*args, **(kwargs or {}))
+
+
+class StepCounts(dict):
+    """Per-step counts of a loop (a dict, for JSON): ``steps``, ``ops_per_step``, ``launch_ops_per_step`` (not
+    views), ``syncs_per_step``, ``ops_outside_steps``, ``syncs_by_op`` and ``top_ops``."""
+
+
+def per_step(run: Callable[[int | None], int]) -> StepCounts:
+    """Ops and syncs per step of a loop: ``run(max_steps)`` runs it (None: to its end) and returns its step count.
+
+    Per step = (the whole run - the run stopped after one step) / (its steps - 1): what is paid once per run (set-up,
+    read-out) cancels.
+    """
+    one = OpCounter()
+    with one:
+        run(1)
+    full = OpCounter()
+    with full:
+        steps = run(None)
+    n = max(steps - 1, 1)
+    ops, syncs = full.ops - one.ops, full.syncs - one.syncs
+    return StepCounts(
+        steps=steps,
+        ops_per_step=sum(ops.values()) / n,
+        launch_ops_per_step=sum(v for k, v in ops.items() if k not in VIEW_OPS) / n,
+        syncs_per_step=sum(syncs.values()) / n,
+        ops_outside_steps=sum(one.ops.values()) - sum(ops.values()) / n,
+        syncs_by_op={k: round(v / n, 2) for k, v in syncs.most_common()},
+        top_ops={k: round(v / n, 1) for k, v in ops.most_common(8)},
+    )
