@@ -7,8 +7,8 @@ Builds the preset's ``train`` dataset (no cache) with ``touches_per_object=--tou
 ``generate(i)`` for one object of each class: touch sampling, placement (and its re-draws), the batched press and
 the readings, exactly what ``python -m tvrecon.data.generate`` does per item, on one torch thread. Prints CPU
 seconds per touch (``time.process_time``; wall time is printed too but means little on a shared machine) and the
-extrapolated CPU time of the whole preset. ``TVRECON_COMPILE=1`` times the compiled solver; its compile time is
-reported apart (``--warmup 1`` generates one extra object first and leaves it out of the per-touch cost).
+extrapolated CPU time of the whole preset. The override ``press.compile=true`` times the compiled solver; its compile
+time is reported apart (``--warmup 1`` generates one extra object first and leaves it out of the per-touch cost).
 """
 
 from __future__ import annotations

@@ -132,22 +132,33 @@ def test_default_cache_is_the_projects_whatever_the_working_directory(tmp_path: 
     assert not (tmp_path / "data").exists()
 
 
-def test_compile_key_turns_on_the_fused_kernels_for_the_run_only(monkeypatch) -> None:
-    """`compile=true` sets TVRECON_COMPILE for the generation (workers inherit it) and restores it afterwards."""
+def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, tmp_path: Path) -> None:
+    """`compile=true|false` is the data-config override `press.compile=...`: the datasets (pickled into the worker
+    processes) carry it in their PressConfig; no environment variable is set, and the cache key does not change."""
     import os
+    import pickle
 
     from tvrecon.data import generate
+    from tvrecon.data.cache import cache_key
 
     seen = []
-    monkeypatch.setattr(
-        generate,
-        "pregenerate",
-        lambda ds, **kw: seen.append(os.environ.get("TVRECON_COMPILE")) or generate.GenerateStats(),
-    )
+
+    def fake_pregenerate(ds, **kw):
+        worker_copy = pickle.loads(pickle.dumps(ds))  # what a spawned worker receives
+        seen.append((worker_copy.press.compile, worker_copy.simulator.compile, cache_key(ds.spec(0))))
+        return generate.GenerateStats()
+
+    monkeypatch.setattr(generate, "pregenerate", fake_pregenerate)
     monkeypatch.delenv("TVRECON_COMPILE", raising=False)
-    generate.main([*ARGS, "splits=train", "workers=1", "compile=true"])
-    generate.main([*ARGS, "splits=train", "workers=1", "compile=False"])
-    generate.main([*ARGS, "splits=train", "workers=1"])
-    assert seen == ["1", "0", None] and "TVRECON_COMPILE" not in os.environ
+    base = [*ARGS, f"cache_dir={tmp_path}", "splits=train", "workers=1"]
+    generate.main([*base, "compile=true"])
+    generate.main([*base, "compile=False"])
+    generate.main(base)
+    generate.main([*base, "press.compile=true"])  # the long spelling, as train.py's data.press.compile=true
+    assert [s[:2] for s in seen] == [(True, True), (False, False), (False, False), (True, True)]
+    assert len({s[2] for s in seen}) == 1  # one cache key whether compiled or not
+    assert "TVRECON_COMPILE" not in os.environ
     with pytest.raises(ValueError, match="compile must be true or false, got 'fast'"):
         generate.main([*ARGS, "compile=fast"])
+    with pytest.raises(ValueError, match=r"compile=\.\.\. or press.compile=\.\.\., not both"):
+        generate.main([*ARGS, "compile=true", "press.compile=false"])

@@ -52,7 +52,7 @@ def test_joblib_shards_write_what_one_process_writes_and_skip_the_cached(tmp_pat
     (multi / expected[0]).parent.mkdir(parents=True)
     shutil.copy(single / expected[0], multi / expected[0])  # one item cached already: its job skips it
 
-    env = {k: v for k, v in os.environ.items() if k not in ("RANK", "LOCAL_RANK", "WORLD_SIZE", "TVRECON_COMPILE")}
+    env = {k: v for k, v in os.environ.items() if k not in ("RANK", "LOCAL_RANK", "WORLD_SIZE")}
     cmd = [sys.executable, "-m", "tvrecon.data.generate", "--multirun", *ARGS, f"cache_dir={multi}", "shard=0/2,1/2"]
     cmd += ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'sweep'}"]
     proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
@@ -73,6 +73,21 @@ def test_multirun_arguments_reach_the_jobs_unchanged() -> None:
     assert OverridesParser.create().parse_overrides([args[-1]])[0].value() == data
     sweep_dir = OmegaConf.load(APP_CONFIG_DIR / "generate.yaml").hydra.sweep
     assert "/logs/generate/multirun/" in OmegaConf.to_container(sweep_dir)["dir"]  # not the working directory
+
+
+def test_a_job_gets_compile_as_its_press_config() -> None:
+    """A multirun's `compile=true` reaches each job's command line, which makes it the data-config override
+    `press.compile=true` (the job's worker processes get it with their datasets, not from the environment)."""
+    from tvrecon.data.generate import _compile_override
+    from tvrecon.data.generate_launcher import job_arguments
+
+    app = OmegaConf.load(APP_CONFIG_DIR / "generate.yaml")
+    for value, expected in ((True, ["press.compile=true"]), (False, ["press.compile=false"]), (None, [])):
+        job = OmegaConf.create({k: app[k] for k in ("preset", "splits", "workers", "shard", "data_overrides")})
+        job.compile, job.data_overrides = value, ["press.n_grid=32"]
+        argv = job_arguments(job)
+        opts = dict(a.split("=", 1) for a in argv if a.split("=", 1)[0] in ("preset", "shard", "compile"))
+        assert _compile_override(opts, argv) == expected, argv
 
 
 @pytest.mark.parametrize(

@@ -10,10 +10,11 @@ Usage::
 
 Arguments are ``key=value``: ``preset`` (a YAML name in ``configs/data``, default ``small``), ``splits``
 (comma-separated, default all configured), ``workers`` (processes, default all cores), ``shard=i/n`` (or
-``--shard i/n``), ``compile`` (``true``/``false``: the presses' opt-in fused kernels, as ``TVRECON_COMPILE=1``; readings
-equal the eager ones to float32 round-off and the cache key does not change; each worker compiles once, ~50 s, so it
-pays on large presets only); everything else is a Hydra override of the data config (``cache_dir=...``,
-``train.num_samples=8``).
+``--shard i/n``), ``compile`` (``true``/``false``: the presses' opt-in fused kernels; short for the data-config
+override ``press.compile=true``/``false`` of ``PressConfig.compile``, which the worker processes receive with the
+config; readings equal the eager ones to float32 round-off and the cache key does not change; each worker compiles
+once per batch size, ~50 s, so it pays on large presets only); everything else is a Hydra override of the data config
+(``cache_dir=...``, ``train.num_samples=8``).
 Under a launcher that sets ``RANK``/``LOCAL_RANK`` and ``WORLD_SIZE`` (Lightning, torchrun, a cluster array job),
 each rank takes its own share of the shard, so a cluster generates in parallel.
 
@@ -67,8 +68,8 @@ __all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "main"
 
 log = logging.getLogger(__name__)
 
-#: the environment variable that makes every ``EIPSimulator`` of this process and its workers use the fused kernels
-COMPILE_ENV = "TVRECON_COMPILE"
+#: the data-config key that ``compile=true|false`` sets (``PressConfig.compile`` of the preset's ``press`` block)
+COMPILE_KEY = "press.compile"
 
 
 @dataclass
@@ -304,18 +305,22 @@ def main(argv: Sequence[str] | None = None) -> list[GenerateStats]:
     previous = signal.getsignal(signal.SIGTERM) if in_main else None
     if in_main:  # SIGTERM -> SystemExit, so the pool's context manager stops its workers
         signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
-    env = os.environ.get(COMPILE_ENV)
     try:
-        if "compile" in opts:  # the worker processes inherit it; restored below for an in-process caller
-            os.environ[COMPILE_ENV] = "1" if _flag(opts["compile"], "compile") else "0"
-        return _run(opts, overrides)
+        return _run(opts, overrides + _compile_override(opts, overrides))
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
-        if env is None:
-            os.environ.pop(COMPILE_ENV, None)
-        else:
-            os.environ[COMPILE_ENV] = env
+
+
+def _compile_override(opts: dict[str, str], overrides: Sequence[str]) -> list[str]:
+    """``compile=true|false`` as the data-config override ``press.compile=...`` ([] without ``compile=``): the
+    datasets, and so the worker processes they are pickled into, carry it in their ``PressConfig``."""
+    if "compile" not in opts:
+        return []
+    flag = _flag(opts["compile"], "compile")
+    if any(o.split("=", 1)[0].lstrip("+~") == COMPILE_KEY for o in overrides):
+        raise ValueError(f"give compile=... or {COMPILE_KEY}=..., not both (compile=true is {COMPILE_KEY}=true)")
+    return [f"{COMPILE_KEY}={str(flag).lower()}"]
 
 
 def _flag(value: str, name: str) -> bool:

@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 __all__ = [
+    "NOT_IN_KEY",
     "OMIT_IF_DEFAULT",
     "check_instance",
     "check_known_keys",
@@ -33,10 +34,17 @@ C = TypeVar("C")
 #: any other value enters the key like every field.
 OMIT_IF_DEFAULT = {"cache_key": "omit_if_default"}
 
+#: ``dataclasses.field(metadata=NOT_IN_KEY)``: a config field that never enters the data cache key, whatever its
+#: value: how a result is computed, not what it is (e.g. ``PressConfig.compile``, equal readings to float32 round-off).
+NOT_IN_KEY = {"cache_key": "never"}
+
 
 def omitted_from_key(f: dataclasses.Field, value: Any) -> bool:
-    """Whether field ``f`` holding ``value`` stays out of a cache key: it is marked ``OMIT_IF_DEFAULT`` and equals
-    its default (a plain ``default``; fields with a ``default_factory`` are never omitted)."""
+    """Whether field ``f`` holding ``value`` stays out of a cache key: it is marked ``NOT_IN_KEY``, or it is marked
+    ``OMIT_IF_DEFAULT`` and equals its default (a plain ``default``; fields with a ``default_factory`` are never
+    omitted)."""
+    if f.metadata.get("cache_key") == "never":
+        return True
     if f.metadata.get("cache_key") != "omit_if_default" or f.default is dataclasses.MISSING:
         return False
     return type(value) is type(f.default) and value == f.default

@@ -16,7 +16,6 @@ requiring grad the step runs under ``torch.no_grad``; otherwise the same code is
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -52,9 +51,10 @@ class MLSMPM:
         device: device of internal constants (states may live on it).
         compile: fuse the per-particle arithmetic of no-grad steps with ``torch.compile``
             (:mod:`tvrecon.sim.mpm.compiled.kernels`; equal to the eager step to float32 round-off, not bit for bit).
-            None (default) -> on when the environment variable ``TVRECON_COMPILE`` is ``1``. Steps that need autograd
-            always run eager; when compiling fails the solver warns once and goes on eager. A compiled step returns
-            x, v, C, F as channel-first views (``compiled.step.CF_VIEWS``); the particle contact's search runs eager.
+            None (default) is off (no environment variable is read; presses switch it with ``PressConfig.compile``).
+            Steps that need autograd always run eager; when compiling fails the solver warns once and goes on eager. A
+            compiled step returns x, v, C, F as channel-first views (``compiled.step.CF_VIEWS``); the particle
+            contact's search runs eager.
 
     After each ``step``, ``last_force`` is the (B, 3) force the collider(s) exerted on the particles of each scene
     (momentum the collider removed from the grid, divided by dt) and ``dt`` is the step used;
@@ -91,8 +91,6 @@ class MLSMPM:
         self.compiled_chunk_size = 2048
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
         self._scenes_of: tuple[Tensor, int, int, int | None] | None = None  # (batch, its version, B, block)
-        if compile is None:
-            compile = os.environ.get("TVRECON_COMPILE", "0") == "1"
         self._kernels: CompiledKernels | None = compiled_kernels() if compile else None
         self._fields = ColliderFields()  # the compiled step's collider sdf on the block grid, kept between steps
         # the particle contact's (P, 3) force per particle of the last step (contact="particle")

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from tvrecon.sim.mpm.state import CONTACT_MODES
 from tvrecon.sim.sensor.pad import _scalar
-from tvrecon.utils.config_utils import OMIT_IF_DEFAULT, check_number, check_whole
+from tvrecon.utils.config_utils import NOT_IN_KEY, OMIT_IF_DEFAULT, check_number, check_whole
 
 __all__ = ["DEFAULT_THRESHOLD", "TERMINAL_MEASURES", "PressConfig"]
 
@@ -66,6 +66,13 @@ class PressConfig:
             cell), so on a face larger than the pad the chamfer stop comes deeper on finer grids (0.61 of the 256
             depth at 128); the displacement stop does not (0.98-0.99). Elsewhere the two agree. docs/physics.md, "The
             stop depth across the object library".
+        compile: run the solver's no-grad steps with its fused ``torch.compile`` kernels (``MLSMPM(compile=True)``,
+            :mod:`tvrecon.sim.mpm.compiled`). How a touch is computed, not what it is: the readings equal the eager
+            ones to float32 round-off (1e-4 grid cells tested), so it never enters the data cache key
+            (``config_utils.NOT_IN_KEY``) and a cache filled either way serves both. Off by default: each solver
+            compiles once per batch size (~40-50 s on a CPU), which pays back only over many steps per process (large
+            presets, long ``generate`` runs; ``generate ... compile=true`` sets it), not on the small presets or in
+            tests. Steps that need autograd always run eager.
 
     The earlier default press (grid-node collider, threshold in the press's own cells) is
     ``PressConfig(contact="grid", threshold_grid=None)`` (CLI: ``--contact grid --threshold-grid 0``).
@@ -93,6 +100,7 @@ class PressConfig:
     contact: str = field(default="particle", metadata=OMIT_IF_DEFAULT)
     threshold_grid: int | None = field(default=128, metadata=OMIT_IF_DEFAULT)
     terminal: str = field(default="chamfer", metadata=OMIT_IF_DEFAULT)
+    compile: bool = field(default=False, metadata=NOT_IN_KEY)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -133,5 +141,7 @@ class PressConfig:
         tg = self.threshold_grid
         if tg is not None and not (isinstance(tg, int) and not isinstance(tg, bool) and tg > 0):
             raise ValueError(f"PressConfig.threshold_grid must be a positive int or None, got {self.threshold_grid!r}")
+        if not isinstance(self.compile, bool):
+            raise TypeError(f"PressConfig.compile must be a bool, got {type(self.compile).__name__} ({self.compile!r})")
         if self.terminal not in TERMINAL_MEASURES:
             raise ValueError(f"PressConfig.terminal must be one of {TERMINAL_MEASURES}, got {self.terminal!r}")

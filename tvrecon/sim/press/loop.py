@@ -114,7 +114,8 @@ class PressLoop:
         compile: bool | None = None,
     ) -> None:
         self.s, self.p, self.mcfg, self.speed, self.device = s, p, mcfg, speed, device
-        self.compile = compile  # MLSMPM(compile=...): fused no-grad steps, equal to round-off; not in any cache key
+        # MLSMPM(compile=...): fused no-grad steps, equal to round-off; None -> the press config's (PressConfig.compile)
+        self.compile = bool(p.compile) if compile is None else bool(compile)
         self.H, self.W = s.resolution
         self.HW, self.dx = self.H * self.W, 1.0 / int(p.n_grid)
         self.dt = float(mcfg.dt)

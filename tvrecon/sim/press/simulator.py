@@ -25,6 +25,8 @@ The concepts live in their own modules; this one holds the configuration and the
 from __future__ import annotations
 
 import dataclasses
+import os
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -49,6 +51,22 @@ from tvrecon.utils.shapes import check_shape
 
 __all__ = ["EIPSimulator"]
 
+#: the environment variable that once switched the fused kernels on; now ignored (``PressConfig.compile`` does it)
+STALE_COMPILE_ENV = "TVRECON_COMPILE"
+
+
+def _warn_stale_compile_env() -> None:
+    """Warn (FutureWarning, shown once per process by the default filters) when ``TVRECON_COMPILE`` is set: nothing
+    reads it any more, so a run that relies on it would silently press eager."""
+    if STALE_COMPILE_ENV in os.environ:
+        warnings.warn(
+            f"the environment variable {STALE_COMPILE_ENV}={os.environ[STALE_COMPILE_ENV]!r} is no longer read: "
+            "switch the fused solver kernels with the press config (press.compile=true, PressConfig(compile=True) or "
+            "EIPSimulator(compile=True)) or `python -m tvrecon.data.generate ... compile=true`",
+            FutureWarning,
+            stacklevel=2,
+        )
+
 
 class EIPSimulator:
     """Press a sensor pad onto meshes with MLS-MPM and read the tactile images.
@@ -57,9 +75,11 @@ class EIPSimulator:
         sensor: pad geometry and material (default :class:`SensorConfig`).
         press: press protocol (default :class:`PressConfig`).
         device: torch device of the simulation.
-        compile: run the solver's no-grad steps with the fused ``torch.compile`` kernels (``MLSMPM(compile=...)``;
-            None -> the ``TVRECON_COMPILE`` environment variable). A speed option, deliberately not a config field:
-            readings equal the eager ones to float32 round-off, so it stays out of the data cache key.
+        compile: run the solver's no-grad steps with the fused ``torch.compile`` kernels (``MLSMPM(compile=True)``):
+            None (default) -> ``press.compile``; a bool replaces ``press.compile`` in this simulator's config (a
+            call's ``compile=`` override still wins, as for every :class:`PressConfig` field). Readings equal the
+            eager ones to float32 round-off and the data cache key does not change (see ``PressConfig.compile``).
+            The environment variable ``TVRECON_COMPILE`` is no longer read (a warning says so when it is set).
     """
 
     def __init__(
@@ -74,7 +94,17 @@ class EIPSimulator:
         check_instance(self.sensor, SensorConfig, "EIPSimulator sensor")
         check_instance(self.cfg, PressConfig, "EIPSimulator press")
         self.device = torch.device(device)
-        self.compile = compile
+        if compile is not None:
+            if not isinstance(compile, bool):
+                raise TypeError(f"EIPSimulator compile must be a bool or None, got {type(compile).__name__}")
+            if compile != self.cfg.compile:
+                self.cfg = dataclasses.replace(self.cfg, compile=compile)
+        _warn_stale_compile_env()
+
+    @property
+    def compile(self) -> bool:
+        """Whether presses run the solver's fused kernels by default (``cfg.compile``; a call may override it)."""
+        return bool(self.cfg.compile)
 
     # ------------------------------------------------------------------ configuration
     def _configs(self, overrides: dict) -> tuple[SensorConfig, PressConfig]:
@@ -206,4 +236,4 @@ class EIPSimulator:
         """Step the placed touches together until each is done (:class:`~tvrecon.sim.press.loop.PressLoop`)."""
         mcfg = self._mpm_config(s, p)
         speed = p.speed if p.speed is not None else float(p.speed_fraction) * self.wave_speed(s)
-        return PressLoop(s, p, mcfg, speed, self.device, compile=self.compile).run(touches)
+        return PressLoop(s, p, mcfg, speed, self.device, compile=p.compile).run(touches)

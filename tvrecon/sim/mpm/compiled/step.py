@@ -1,5 +1,5 @@
 """The no-grad MLS-MPM step with the per-particle parts fused by ``torch.compile`` (opt-in: ``MLSMPM(compile=True)``
-or ``TVRECON_COMPILE=1``; kernels in :mod:`.kernels`).
+or ``PressConfig(compile=True)``; kernels in :mod:`.kernels`).
 
 Same order as :meth:`tvrecon.sim.mpm.solver.MLSMPM._step` (P2G, grid update, G2P: paper eq. 5-11). The scatter
 differs in layout only: each particle's 108 contributions are one contiguous row of a node-major ``(N, 108)`` table
