@@ -18,7 +18,6 @@ so it prints its progress and summary lines, skips cached items and writes the s
 from __future__ import annotations
 
 import importlib.util
-import os
 import re
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -29,6 +28,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from tvrecon.data.generate_args import OPTION_KEYS, parse_shard  # the app's keys: the command's own (swept)
 from tvrecon.data.presets import PROJECT_ROOT, preset_names
+from tvrecon.utils.cli_errors import argv_and_env
 
 #: the single-process command a job runs (``tvrecon.data.generate.main``): argv -> its stats
 Run = Callable[[list[str]], list[Any]]
@@ -192,21 +192,10 @@ def multirun(argv: Sequence[str], run: Run, usage: str = "") -> list[Any]:
     import hydra
 
     args = hydra_arguments(argv, usage)
-    saved_argv = sys.argv
-    saved_env = {k: os.environ.get(k) for k in ("HYDRA_FULL_ERROR", "PROJECT_ROOT")}
-    sys.argv = [saved_argv[0] if saved_argv else "generate", *args]
-    os.environ["HYDRA_FULL_ERROR"] = "1"
-    os.environ.setdefault("PROJECT_ROOT", str(PROJECT_ROOT))
-    try:
+    prog = sys.argv[0] if sys.argv else "generate"
+    with argv_and_env([prog, *args], {"HYDRA_FULL_ERROR": "1"}, defaults={"PROJECT_ROOT": str(PROJECT_ROOT)}):
         app = hydra.main(version_base="1.3", config_path=str(APP_CONFIG_DIR), config_name="generate")(
             lambda cfg: run_job(cfg, run)
         )
         app()
-    finally:
-        sys.argv = saved_argv
-        for key, value in saved_env.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
     return []

@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from typing import Any, NoReturn
 
 __all__ = [
+    "argv_and_env",
     "EXIT_FAILED",
     "EXIT_INTERRUPTED",
     "EXIT_USAGE",
@@ -203,16 +204,29 @@ def run_hydra_cli(main: Callable[[], Any], *, prog: str, resume: bool = False) -
     environment and ``sys.argv`` are restored afterwards (an in-process caller, e.g. a test, sees no change).
     """
     debug = debug_requested()
-    saved_argv = sys.argv
-    saved_env = {k: os.environ.get(k) for k in ("HYDRA_FULL_ERROR", "TVRECON_DEBUG", "TVRECON_CLI_OWNS_HYDRA_ERRORS")}
-    sys.argv = [sys.argv[0], *_strip_debug(sys.argv[1:])]
+    env = {"HYDRA_FULL_ERROR": "1", "TVRECON_CLI_OWNS_HYDRA_ERRORS": "1"}
     if debug:
-        os.environ["TVRECON_DEBUG"] = "1"
-    os.environ["HYDRA_FULL_ERROR"] = "1"
-    os.environ["TVRECON_CLI_OWNS_HYDRA_ERRORS"] = "1"
+        env["TVRECON_DEBUG"] = "1"
+    argv = [sys.argv[0], *_strip_debug(sys.argv[1:])]
+    with argv_and_env(argv, env, keep=("TVRECON_DEBUG",)), cli_errors(prog, resume=resume, debug=debug):
+        main()
+
+
+@contextmanager
+def argv_and_env(
+    argv: Sequence[str], env: dict[str, str], defaults: dict[str, str] | None = None, keep: Sequence[str] = ()
+) -> Iterator[None]:
+    """``sys.argv`` set to ``argv`` and the variables of ``env`` set (those of ``defaults`` only where unset) while the
+    block runs; all of them, and the names in ``keep``, are restored afterwards (an in-process caller, e.g. a test,
+    sees no change)."""
+    names = {*env, *(defaults or {}), *keep}
+    saved_argv, saved_env = sys.argv, {k: os.environ.get(k) for k in names}
+    sys.argv = list(argv)
+    os.environ.update(env)
+    for key, value in (defaults or {}).items():
+        os.environ.setdefault(key, value)
     try:
-        with cli_errors(prog, resume=resume, debug=debug):
-            main()
+        yield
     finally:
         sys.argv = saved_argv
         for key, value in saved_env.items():
