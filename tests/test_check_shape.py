@@ -24,3 +24,12 @@ def test_check_shape_accepts_documented_shapes() -> None:
 def test_check_shape_names_the_input_and_both_shapes(x, spec: str, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         check_shape(x, spec, "x")
+
+
+def test_check_shape_takes_documented_alternatives() -> None:
+    check_shape(torch.zeros(2, 5, 3), "(B, V, 3) or (V, 3)", "verts")
+    check_shape(torch.zeros(5, 3), "(B, V, 3) or (V, 3)", "verts")
+    with pytest.raises(ValueError, match=r"verts must have shape \(B, V, 3\) or \(V, 3\), got \(5, 2\)"):
+        check_shape(torch.zeros(5, 2), "(B, V, 3) or (V, 3)", "verts")
+    with pytest.raises(ValueError, match=r"verts must have shape \(B, V, 3\) or \(V, 3\), got \(1, 2, 5, 3\)"):
+        check_shape(torch.zeros(1, 2, 5, 3), "(B, V, 3) or (V, 3)", "verts")

@@ -8,15 +8,8 @@ from typing import Any
 __all__ = ["check_shape"]
 
 
-def check_shape(x: Any, spec: str, name: str) -> None:
-    """Raise ``ValueError("{name} must have shape {spec}, got {shape}")`` unless ``x.shape`` matches ``spec``.
-
-    ``spec`` is written as in the docstrings, e.g. ``"(B, N, 3)"``: a number must be that size, a name (``B``, ``h``)
-    may be any size, and a leading ``...`` stands for any number of leading dimensions (``"(..., 3, H, W)"``).
-    ``x``: a torch tensor or a numpy array.
-    """
+def _matches(shape: tuple[int, ...], spec: str) -> bool:
     dims = [d.strip() for d in spec.strip().strip("()").split(",") if d.strip()]
-    shape = tuple(x.shape)
     if dims and dims[0] == "...":
         dims = dims[1:]
         ok = len(shape) >= len(dims)
@@ -24,6 +17,17 @@ def check_shape(x: Any, spec: str, name: str) -> None:
     else:
         ok = len(shape) == len(dims)
         tail = shape
-    ok = ok and all(not d.isdigit() or int(d) == n for d, n in zip(dims, tail))
-    if not ok:
+    return ok and all(not d.isdigit() or int(d) == n for d, n in zip(dims, tail))
+
+
+def check_shape(x: Any, spec: str, name: str) -> None:
+    """Raise ``ValueError("{name} must have shape {spec}, got {shape}")`` unless ``x.shape`` matches ``spec``.
+
+    ``spec`` is written as in the docstrings, e.g. ``"(B, N, 3)"``: a number must be that size, a name (``B``, ``h``)
+    may be any size, and a leading ``...`` stands for any number of leading dimensions (``"(..., 3, H, W)"``).
+    Documented alternatives are joined by ``or``: ``"(B, V, 3) or (V, 3)"`` accepts either.
+    ``x``: a torch tensor or a numpy array.
+    """
+    shape = tuple(x.shape)
+    if not any(_matches(shape, alt) for alt in spec.split(" or ")):
         raise ValueError(f"{name} must have shape {spec}, got {shape}")
