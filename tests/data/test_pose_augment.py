@@ -16,7 +16,7 @@ def test_quarter_turn_and_invariants() -> None:
     torch.testing.assert_close(z.norm(dim=-1), y.norm(dim=-1))  # lengths and heights kept
     torch.testing.assert_close(z[..., 2], y[..., 2])
     torch.testing.assert_close(turn_about_up(z, -1.234), y, atol=1e-6, rtol=1e-6)
-    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+    with pytest.raises(ValueError, match=r"vectors must have shape \(\.\.\., 3\), got \(4, 2\)"):
         turn_about_up(torch.zeros(4, 2), 0.1)
     with pytest.raises(ValueError, match="finite"):
         turn_about_up(y, float("nan"))

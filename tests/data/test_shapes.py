@@ -130,5 +130,7 @@ def test_lathe_and_normalize() -> None:
     np.testing.assert_allclose(m.volume, np.pi * 2.0, rtol=0.01)
     n = normalize(m)
     np.testing.assert_allclose(n.extents.max(), 1.0)
-    with pytest.raises(ValueError, match=r"\(n>=3, 2\)"):
+    with pytest.raises(ValueError, match=r"lathe profile must have shape \(n, 2\) with n >= 3"):
         lathe(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"lathe profile must have shape \(n, 2\), got \(4, 3\)"):
+        lathe(np.zeros((4, 3)))

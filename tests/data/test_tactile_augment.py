@@ -79,8 +79,10 @@ def test_same_on_gpu() -> None:
 def test_bad_input() -> None:
     with pytest.raises(ValueError, match="square"):
         rotate_tactile(torch.zeros(3, 4, 6), 1)
-    with pytest.raises(ValueError, match=r"\(\.\.\., 3, H, W\)"):
+    with pytest.raises(ValueError, match=r"images must have shape \(\.\.\., 3, H, W\), got \(2, 4, 4\)"):
         rotate_tactile(torch.zeros(2, 4, 4), 1)
+    with pytest.raises(ValueError, match=r"images must have shape \(N, 3, H, W\), got \(3, 4, 4\)"):
+        orient_touches(torch.zeros(3, 4, 4), [1], [False])
     with pytest.raises(TypeError, match="integer"):
         rotate_tactile(torch.zeros(3, 4, 4), 1.5)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="integer"):

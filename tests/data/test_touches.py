@@ -116,7 +116,7 @@ def test_bad_inputs(torus: trimesh.Trimesh) -> None:
         sample_touches(torus, 0, 0)
     with pytest.raises(ValueError, match="no faces"):
         sample_touches(trimesh.Trimesh(), 3, 0)
-    with pytest.raises(ValueError, match=r"\(T, 3, h, w\) or \(3, h, w\)"):
+    with pytest.raises(ValueError, match=r"image must have shape \(T, 3, h, w\) or \(3, h, w\), got \(2, 64, 64\)"):
         resize_tactile(torch.zeros(2, 64, 64))
     with pytest.raises(ValueError, match="missing key"):
         simulate_touches(None, torus, {"positions": torch.zeros(1, 3)})

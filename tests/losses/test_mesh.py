@@ -145,3 +145,23 @@ def test_mesh_loss_defaults_and_zero_weights() -> None:
         MeshLoss({"chamfr": 1.0})
     with pytest.raises(ValueError, match="one weight per stage"):
         mesh_loss_terms(out, gt, normals, stage_weights=[1.0])
+
+
+def test_mesh_losses_name_a_bad_shape() -> None:
+    v = torch.rand(2, 4, 3)
+    with pytest.raises(ValueError, match=r"verts must have shape \(B, V, 3\), got \(4, 3\)"):
+        edge_length_loss(v[0], EDGES)
+    with pytest.raises(ValueError, match=r"edges must have shape \(E, 2\), got \(6,\)"):
+        laplacian_coordinates(v, EDGES[:, 0])
+    with pytest.raises(ValueError, match=r"verts must have shape \(B, V, 3\), got \(2, 4, 2\)"):
+        move_loss(v[..., :2], v[..., :2])
+    with pytest.raises(ValueError, match=r"before must have the shape of verts \(2, 4, 3\), got \(1, 4, 3\)"):
+        move_loss(v, v[:1])
+    idx = torch.zeros(2, 4, dtype=torch.long)
+    with pytest.raises(ValueError, match=r"gt_normals must have shape \(B, M, 3\), got \(5, 3\)"):
+        normal_loss(v, EDGES, torch.rand(5, 3), idx)
+    with pytest.raises(ValueError, match=r"gt_normals must have shape \(B, M, 3\) with B=2, got \(1, 5, 3\)"):
+        normal_loss(v, EDGES, torch.rand(1, 5, 3), idx)
+    out = _fake_output(3)
+    with pytest.raises(ValueError, match=r"normals must have the shape of points \(2, 10, 3\), got \(2, 9, 3\)"):
+        mesh_loss_terms(out, torch.rand(2, 10, 3), torch.rand(2, 9, 3))

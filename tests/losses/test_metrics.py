@@ -85,12 +85,18 @@ def test_mesh_metrics_perfect_and_shifted() -> None:
 
 
 def test_metrics_validate_input() -> None:
-    with pytest.raises(ValueError, match=r"\(F, 3\)"):
+    with pytest.raises(ValueError, match=r"faces must have shape \(F, 3\) with F > 0"):
         sample_points_on_mesh(torch.rand(1, 4, 3), torch.zeros(0, 3, dtype=torch.long))
+    with pytest.raises(ValueError, match=r"faces must have shape \(F, 3\), got \(1, 4\)"):
+        sample_points_on_mesh(torch.rand(1, 4, 3), torch.zeros(1, 4, dtype=torch.long))
+    with pytest.raises(ValueError, match=r"verts must have shape \(B, V, 3\) or \(V, 3\), got \(4, 2\)"):
+        sample_points_on_mesh(torch.rand(4, 2), torch.tensor([[0, 1, 2]]))
     with pytest.raises(ValueError, match="positive distances"):
         fscore_points(torch.rand(1, 4, 3), torch.rand(1, 4, 3), (0.0,))
-    with pytest.raises(ValueError, match=r"\(B, M, 3\)"):
+    with pytest.raises(ValueError, match=r"gt_points must have shape \(B, M, 3\) with B=2"):
         chamfer_metric(torch.rand(2, 4, 3), torch.tensor([[0, 1, 2]]), torch.rand(3, 5, 3))
+    with pytest.raises(ValueError, match=r"gt_points must have shape \(B, M, 3\), got \(5, 3\)"):
+        chamfer_metric(torch.rand(2, 4, 3), torch.tensor([[0, 1, 2]]), torch.rand(5, 3))
     assert math.isfinite(
         chamfer_metric(torch.rand(2, 4, 3), torch.tensor([[0, 1, 2]]), torch.rand(2, 5, 3)).sum().item()
     )

@@ -28,7 +28,7 @@ def test_backbone_stage_shapes_and_touch_folding() -> None:
     # shared weights: touch (1, 2) alone gives the same features as inside the folded batch
     alone = net(tac[1, 2][None])
     assert torch.allclose(alone[3][0], per_touch[3][1, 2], atol=1e-5)
-    with pytest.raises(ValueError, match=r"\(B, 3, H, W\)"):
+    with pytest.raises(ValueError, match=r"x must have shape \(B, 3, H, W\), got \(2, 4, 32, 32\)"):
         net(torch.rand(2, 4, 32, 32))
 
 

@@ -93,7 +93,11 @@ def test_place_embeddings_validates() -> None:
         place_embeddings(
             torch.zeros(1, 2, 4, 4), torch.zeros(1, 3), torch.zeros(1, dtype=torch.long), torch.zeros(1, 2), (8, 8)
         )
-    with pytest.raises(ValueError, match=r"\(B, T, 3\)"):
+    with pytest.raises(ValueError, match=r"uv must have shape \(N, 2\), got \(1, 3\)"):
+        place_embeddings(
+            torch.zeros(1, 2, 4, 4), torch.zeros(1, 2), torch.zeros(1, dtype=torch.long), torch.zeros(1, 3), (8, 8)
+        )
+    with pytest.raises(ValueError, match=r"positions must have shape \(B, T, 3\), got \(2, 3\)"):
         locate_touches(torch.zeros(2, 3), *camera(1), (H, W))
 
 
@@ -155,7 +159,7 @@ def test_fusion_validates() -> None:
     with pytest.raises(ValueError, match="odd positive"):
         TactileVisualFusion(region=4)
     placement, tactile = _fusion_inputs()
-    with pytest.raises(ValueError, match=r"\(B, 64, h, w\)"):
+    with pytest.raises(ValueError, match=r"visual stage 0 must have shape \(B, 64, h, w\), got \(2, 32, "):
         TactileVisualFusion()(0, torch.randn(2, 32, h, w), tactile, None, placement, (H, W))
 
 

@@ -91,7 +91,11 @@ def test_modes() -> None:
         TactileVisualReconstructor(mode="both")
     with pytest.raises(ValueError, match=r"\(B, 3, H, W\)"):
         fusion(torch.rand(2, 1, H, H), b["K"], b["RT"])
-    with pytest.raises(ValueError, match=r"\(B, T, 3\)"):
+    with pytest.raises(ValueError, match=r"K must have shape \(B, 3, 3\), got \(2, 2, 3\)"):
+        fusion(b["image"], b["K"][:, :2], b["RT"])
+    with pytest.raises(ValueError, match=r"K must be \(B, 3, 3\) and RT \(B, 3, 4\) with B=2"):
+        fusion(b["image"], b["K"][:1], b["RT"])
+    with pytest.raises(ValueError, match=r"positions must have shape \(B, T, 3\), got \(2, 3\)"):
         run(fusion, b, positions=torch.rand(2, 3))
 
 

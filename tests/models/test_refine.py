@@ -54,5 +54,5 @@ def test_bad_input_is_named(too_flat):
     verts, _, edges, _, pts = too_flat
     with pytest.raises(ValueError, match="mask must be"):
         refine_to_patches(verts, edges, pts, torch.ones(1, 3, dtype=torch.bool))
-    with pytest.raises(ValueError, match="points must have shape"):
+    with pytest.raises(ValueError, match=r"points must have shape \(B, N, 3\), got \(300, 3\)"):
         refine_to_patches(verts, edges, pts[0], torch.ones(1, 300, dtype=torch.bool))

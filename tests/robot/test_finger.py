@@ -62,7 +62,7 @@ def test_finger_rejects_bad_axes() -> None:
         TactileFinger(0, -1, normal_axis=(0, 0, 0))
     with pytest.raises(ValueError, match="parallel"):
         TactileFinger(0, -1, normal_axis=(0, 0, 1), up_axis=(0, 0, 2))
-    with pytest.raises(ValueError, match=r"\(3,\)"):
+    with pytest.raises(ValueError, match=r"normal_axis must have shape \(3,\), got \(2,\)"):
         TactileFinger(0, -1, normal_axis=(0, 1))
     f = TactileFinger(0, -1, normal_axis=(0, 0, -1), up_axis=(1, 0, 0))
     with pytest.raises(ValueError, match="trimesh"):

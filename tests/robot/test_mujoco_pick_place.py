@@ -35,7 +35,7 @@ def test_depth_back_projection_and_camera_axes() -> None:
     assert np.allclose(pts[..., 2], 0.0) and pts.shape == (4, 6, 3)
     assert pts[0, 0, 0] < 0 < pts[0, -1, 0] and pts[0, 0, 1] > 0 > pts[-1, 0, 1]  # x right, y up
     assert np.allclose(np.abs(pts[0, 0, 1]), 2.0 * (1.5 / 2.0), atol=1e-9)  # tan(45 deg) * depth at the pixel centre
-    with pytest.raises(ValueError, match=r"\(H,W\)"):
+    with pytest.raises(ValueError, match=r"depth must have shape \(H, W\), got \(3,\)"):
         depth_to_world(np.zeros(3), np.zeros(3), np.eye(3), 45.0)
 
 

@@ -40,12 +40,12 @@ def test_plan_reports_too_wide_too_small_and_unseen() -> None:
     assert not tiny.feasible and "too small" in tiny.reason
     unseen = plan_top_grasp(np.zeros((3, 3)), table_z=0.6)
     assert not unseen.feasible and "not found" in unseen.reason
-    with pytest.raises(ValueError, match=r"\(N,3\)"):
+    with pytest.raises(ValueError, match=r"points must have shape \(N, 3\), got \(10, 2\)"):
         plan_top_grasp(np.zeros((10, 2)), table_z=0.6)
 
 
 def test_depth_to_points_rejects_bad_shape() -> None:
-    with pytest.raises(ValueError, match=r"\(H,W\)"):
+    with pytest.raises(ValueError, match=r"zbuf must have shape \(H, W\), got \(2, 2, 2\)"):
         depth_to_points(np.zeros((2, 2, 2)), [0.0] * 16, [0.0] * 16)
 
 

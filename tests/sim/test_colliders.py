@@ -80,7 +80,7 @@ def test_bad_inputs():
         SphereCollider((0.5, 0.5, 0.5), 0.0)
     with pytest.raises(ValueError, match="non-zero"):
         PlaneCollider((0, 0, 0), (0, 0, 0))
-    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+    with pytest.raises(ValueError, match=r"points must have shape \(N, 3\), got \(3,\)"):
         SphereCollider((0.5, 0.5, 0.5), 0.1).sdf(torch.zeros(3))
     with pytest.raises(ValueError, match="empty"):
         MeshCollider(trimesh.Trimesh(), n_grid=32)

@@ -74,6 +74,12 @@ def test_bad_input_is_named():
         contact_patch(torch.zeros(3, 5, 4), torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
     with pytest.raises(ValueError, match="non-zero"):
         contact_patch(torch.zeros(3, 4, 4), torch.zeros(3), torch.zeros(3), sensor, 32)
+    with pytest.raises(ValueError, match=r"image must have shape \(3, H, W\) or \(T, 3, H, W\), got \(4, 4\)"):
+        contact_patch(torch.zeros(4, 4), torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
+    with pytest.raises(ValueError, match=r"position must have shape \(3,\) or \(T, 3\), got \(2,\)"):
+        contact_patch(torch.zeros(3, 4, 4), torch.zeros(2), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
+    with pytest.raises(ValueError, match=r"position and direction must have shape \(2, 3\) like the images"):
+        contact_patch(torch.zeros(2, 3, 4, 4), torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), sensor, 32)
     bad = torch.zeros(3, 4, 4)
     bad[0, 0, 0] = float("nan")
     with pytest.raises(ValueError, match="NaN"):

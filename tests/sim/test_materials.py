@@ -90,5 +90,7 @@ def test_bad_inputs():
         lame_parameters(3.0, 0.5)
     with pytest.raises(ValueError, match="Young's modulus"):
         lame_parameters(-1.0, 0.2)
-    with pytest.raises(ValueError, match=r"\(P, 3, 3\)"):
+    with pytest.raises(ValueError, match=r"F must have shape \(P, 3, 3\), got \(3, 3\)"):
         polar_decomposition(torch.eye(3))
+    with pytest.raises(ValueError, match=r"E must have shape \(\), got \(2,\)"):
+        lame_parameters(torch.ones(2), 0.2)

@@ -225,7 +225,7 @@ def test_bad_inputs():
         solver.step(state, alpha=torch.ones(3))
     with pytest.raises(ValueError, match="one entry per scene"):
         solver.step(state, collider=[None, None])
-    with pytest.raises(ValueError, match=r"x0 must be a \(P, 3\)"):
+    with pytest.raises(ValueError, match=r"x0 must have shape \(P, 3\), got \(4, 2\)"):
         ParticleState.create(torch.zeros(4, 2), None, volume=1.0)
     with pytest.raises(ValueError, match="dt must be > 0"):
         MLSMPM(MPMConfig(dt=-1.0))

@@ -57,7 +57,7 @@ def test_batch_equals_single_and_specular() -> None:
 
 
 def test_bad_input_is_a_clear_error() -> None:
-    with pytest.raises(ValueError, match="3, H, W"):
+    with pytest.raises(ValueError, match=r"image must have shape \(\.\.\., 3, H, W\), got \(8, 8\)"):
         render_rgb(torch.zeros(8, 8))
     with pytest.raises(ValueError, match="NaN"):
         render_rgb(torch.full((3, 4, 4), float("nan")))

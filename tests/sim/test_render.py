@@ -35,7 +35,7 @@ def test_sequence_png_with_sections(tmp_path: Path) -> None:
     out = save_sequence_png(frames, tmp_path / "seq.png", steps=[0, 10, 20], sections=sections)
     w, h = Image.open(out).size
     assert w > 1.5 * h  # side by side
-    with pytest.raises(ValueError, match=r"\(K, 3, H, W\)"):
+    with pytest.raises(ValueError, match=r"frames must have shape \(K, 3, H, W\), got \(3, "):
         save_sequence_png(frames[0], tmp_path / "bad.png")
     with pytest.raises(ValueError, match="steps must have K=3"):
         save_sequence_png(frames, tmp_path / "bad.png", steps=[1])
@@ -56,8 +56,10 @@ def test_ply_roundtrip(tmp_path: Path) -> None:
     cloud = trimesh.load(out)
     assert len(cloud.vertices) == 50
     np.testing.assert_allclose(np.asarray(cloud.vertices), pts.numpy(), atol=1e-6)
-    with pytest.raises(ValueError, match=r"\(P, 3\)"):
+    with pytest.raises(ValueError, match=r"points must have shape \(P, 3\), got \(4, 2\)"):
         save_ply(torch.zeros(4, 2), tmp_path / "bad.ply")
+    with pytest.raises(ValueError, match=r"points must have shape \(P, 3\) with P > 0"):
+        save_ply(torch.zeros(0, 3), tmp_path / "bad.ply")
     with pytest.raises(ValueError, match=r"values must have shape \(P,\)"):
         save_ply(pts, tmp_path / "bad.ply", values=torch.zeros(3))
 
@@ -72,5 +74,7 @@ def test_pad_surface_encloses_the_block() -> None:
     np.testing.assert_allclose(mesh.bounds[0], lo - 0.25, atol=0.3)
     np.testing.assert_allclose(mesh.bounds[1], hi + 0.25, atol=0.3)
     assert mesh.volume == pytest.approx(float(np.prod(hi - lo + 0.5)), rel=0.35)
-    with pytest.raises(ValueError, match=r"\(P, 3\)"):
+    with pytest.raises(ValueError, match=r"points must have shape \(P, 3\) with P >= 4"):
         pad_surface(torch.zeros(3, 3), spacing=0.5)
+    with pytest.raises(ValueError, match=r"points must have shape \(P, 3\), got \(5, 2\)"):
+        pad_surface(torch.zeros(5, 2), spacing=0.5)

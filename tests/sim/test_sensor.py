@@ -50,7 +50,7 @@ def test_sensor_frame_rejects_bad_directions() -> None:
         sensor_frame(torch.zeros(3))
     with pytest.raises(ValueError, match="finite"):
         sensor_frame(torch.tensor([float("nan"), 0.0, 1.0]))
-    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+    with pytest.raises(ValueError, match=r"direction must have shape \(3,\), got \(2,\)"):
         sensor_frame(torch.ones(2))
 
 
@@ -73,5 +73,7 @@ def test_sensor_config_validation(kwargs: dict, match: str) -> None:
 
 
 def test_contact_layer_shape_check() -> None:
-    with pytest.raises(ValueError, match=r"\(\.\.\., P, 3\)"):
+    with pytest.raises(ValueError, match=r"x must have shape \(\.\.\., P, 3\) with P >= H\*W = 16, got \(5, 3\)"):
         contact_layer(torch.zeros(5, 3), SensorConfig(resolution=(4, 4)))
+    with pytest.raises(ValueError, match=r"x must have shape \(\.\.\., P, 3\), got \(16, 2\)"):
+        contact_layer(torch.zeros(16, 2), SensorConfig(resolution=(4, 4)))

@@ -57,7 +57,7 @@ def test_occupancy_sdf_signs():
     assert sdf[4, 4, 4] == pytest.approx(-(3 * 0.5 - 0.25))
     assert sdf[2, 4, 4] == pytest.approx(-0.25) and sdf[1, 4, 4] == pytest.approx(0.25)
     assert sdf[0, 4, 4] == pytest.approx(0.75)
-    with pytest.raises(ValueError, match="3-D"):
+    with pytest.raises(ValueError, match=r"occupancy must have shape \(X, Y, Z\), got \(9, 9\)"):
         occupancy_sdf(occ[0], 0.5)
 
 
@@ -70,7 +70,7 @@ def test_save_particles_ply(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # the usual mode, not mkstemp's 0600
-    with pytest.raises(ValueError, match=r"\(P, 3\)"):
+    with pytest.raises(ValueError, match=r"x must have shape \(P, 3\), got \(\d+, 2\)"):
         save_particles_ply(tmp_path / "q.ply", x[:, :2])
 
 

@@ -66,7 +66,7 @@ def test_keep_first_touches_keeps_first_valid_ones() -> None:
     ]
     assert not keep_first_touches(mask, 0).any()
     assert torch.equal(keep_first_touches(mask, 10), mask)
-    with pytest.raises(ValueError, match=r"\(B, T\) bool"):
+    with pytest.raises(ValueError, match=r"touch_mask must be a \(B, T\) bool tensor, got torch.int64"):
         keep_first_touches(mask.long(), 2)
 
 

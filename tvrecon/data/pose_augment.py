@@ -14,6 +14,8 @@ import math
 import torch
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["turn_about_up"]
 
 
@@ -27,8 +29,7 @@ def turn_about_up(vectors: Tensor, angle: float) -> Tensor:
     Returns:
         (..., 3) tensor like ``vectors``: ``(x cos a - y sin a, x sin a + y cos a, z)``.
     """
-    if vectors.shape[-1:] != (3,):
-        raise ValueError(f"vectors must have shape (..., 3), got {tuple(vectors.shape)}")
+    check_shape(vectors, "(..., 3)", "vectors")
     if not math.isfinite(float(angle)):
         raise ValueError(f"angle must be finite, got {angle}")
     c, s = math.cos(float(angle)), math.sin(float(angle))

@@ -67,10 +67,16 @@ def draw_preview(
         the matplotlib Figure (caller saves and closes it).
     """
     check_shape(image, "(3, H, W)", "image")
+    check_shape(positions, "(T, 3)", "positions")
+    check_shape(directions, "(T, 3)", "directions")
+    check_shape(tactile, "(T, 3, h, w)", "tactile")
     T = positions.shape[0]
-    if positions.shape != (T, 3) or directions.shape != (T, 3) or T < 1:
-        raise ValueError(f"positions and directions must have shape (T, 3), T >= 1; got {tuple(positions.shape)}")
-    if tactile.ndim != 4 or tactile.shape[:2] != (T, 3):
+    if directions.shape[0] != T or T < 1:
+        raise ValueError(
+            f"positions and directions must have shape (T, 3) with T >= 1, got {tuple(positions.shape)} and "
+            f"{tuple(directions.shape)}"
+        )
+    if tactile.shape[0] != T:
         raise ValueError(f"tactile must have shape (T, 3, h, w) with T={T}, got {tuple(tactile.shape)}")
     colours = plt.get_cmap("tab10")(np.arange(T) % 10)
     rows, cols = _grid(T)

@@ -23,14 +23,15 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["rotate_tactile", "orient_touches"]
 
 
-def _check_images(images: Tensor) -> None:
+def _check_images(images: Tensor, spec: str = "(..., 3, H, W)") -> None:
     if not isinstance(images, Tensor):
         raise TypeError(f"images must be a torch.Tensor, got {type(images).__name__}")
-    if images.dim() < 3 or images.shape[-3] != 3:
-        raise ValueError(f"images must have shape (..., 3, H, W) (x shear, y shear, normal), got {tuple(images.shape)}")
+    check_shape(images, spec, "images")
 
 
 def rotate_tactile(images: Tensor, k: int, mirror: bool = False) -> Tensor:
@@ -81,9 +82,7 @@ def orient_touches(images: Tensor, k: Sequence[int] | Tensor, mirror: Sequence[b
     Returns:
         (N, 3, H, W) tensor like ``images``.
     """
-    _check_images(images)
-    if images.dim() != 4:
-        raise ValueError(f"images must have shape (N, 3, H, W), got {tuple(images.shape)}")
+    _check_images(images, "(N, 3, H, W)")
     ks, ms = [int(v) for v in k], [bool(v) for v in mirror]
     if len(ks) != images.shape[0] or len(ms) != images.shape[0]:
         raise ValueError(f"need one k and one mirror per touch (N={images.shape[0]}), got {len(ks)} and {len(ms)}")

@@ -23,6 +23,7 @@ import trimesh
 
 from tvrecon.data.touches import Touches, TouchPolicy
 from tvrecon.utils.config_utils import OMIT_IF_DEFAULT
+from tvrecon.utils.shapes import check_shape
 
 if TYPE_CHECKING:
     from tvrecon.sim.press.config import PressConfig
@@ -48,8 +49,7 @@ def sweep_directions(azimuth: float, elevations_deg: np.ndarray) -> np.ndarray:
         (T, 3) float64 unit press directions, pointing from the pad into the object.
     """
     e = np.deg2rad(np.asarray(elevations_deg, dtype=np.float64))
-    if e.ndim != 1:
-        raise ValueError(f"elevations_deg must have shape (T,), got {e.shape}")
+    check_shape(e, "(T,)", "elevations_deg")
     out = np.stack([np.cos(e) * math.cos(azimuth), np.cos(e) * math.sin(azimuth), np.sin(e)], axis=1)
     return -out / np.linalg.norm(out, axis=1, keepdims=True)
 

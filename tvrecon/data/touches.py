@@ -30,6 +30,7 @@ from tvrecon.data.views import Camera, ray_intersector
 from tvrecon.sim.press.placement import pad_footprint, pad_reachable
 from tvrecon.utils.config_utils import coerce_config, omitted_from_key
 from tvrecon.utils.geometry import check_mesh, perpendicular_basis, world_to_camera
+from tvrecon.utils.shapes import check_shape
 
 if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
     from tvrecon.sim.press.reading import TactileReading
@@ -263,8 +264,7 @@ def cone_directions(axes: np.ndarray, half_angle_deg: float, rng: np.random.Gene
         (T, 3) float64 unit vectors d with angle(d, axis) <= half_angle_deg.
     """
     axes = np.asarray(axes, dtype=np.float64)
-    if axes.ndim != 2 or axes.shape[1] != 3:
-        raise ValueError(f"axes must have shape (T, 3), got {axes.shape}")
+    check_shape(axes, "(T, 3)", "axes")
     a = axes / np.linalg.norm(axes, axis=1, keepdims=True)
     cos_max = np.cos(np.deg2rad(half_angle_deg))
     cos_t = 1.0 - rng.uniform(size=len(a)) * (1.0 - cos_max)  # uniform on the spherical cap
@@ -288,8 +288,9 @@ def visible_points(mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarra
     """
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
-        raise ValueError(f"points and normals must both have shape (N, 3), got {points.shape} and {normals.shape}")
+    check_shape(points, "(N, 3)", "points")
+    if normals.shape != points.shape:
+        raise ValueError(f"normals must have the shape of points {points.shape}, got {normals.shape}")
     center = camera.center.double().numpy()
     cam = world_to_camera(torch.from_numpy(points), camera.RT.double()).numpy()  # (N, 3)
     z = cam[:, 2]
@@ -375,7 +376,8 @@ def simulate_touches(
     pos = torch.as_tensor(get("positions"), dtype=torch.float32)
     dirs = torch.as_tensor(get("directions"), dtype=torch.float32)
     strengths = list(get("strengths"))
-    if pos.ndim != 2 or pos.shape[1] != 3 or dirs.shape != pos.shape or len(strengths) != len(pos):
+    check_shape(pos, "(T, 3)", "positions")
+    if dirs.shape != pos.shape or len(strengths) != len(pos):
         raise ValueError(
             f"touches need positions (T, 3), directions (T, 3) and T strengths; got {tuple(pos.shape)}, "
             f"{tuple(dirs.shape)} and {len(strengths)}"
@@ -408,8 +410,7 @@ def resize_tactile(image: Tensor, size: int | tuple[int, int] = 224) -> Tensor:
         (T, 3, H, W) or (3, H, W), same dtype and device as `image`.
     """
     image = torch.as_tensor(image)
-    if image.ndim not in (3, 4) or image.shape[-3] != 3:
-        raise ValueError(f"image must have shape (T, 3, h, w) or (3, h, w), got {tuple(image.shape)}")
+    check_shape(image, "(T, 3, h, w) or (3, h, w)", "image")
     hw = (int(size), int(size)) if isinstance(size, int) else tuple(int(s) for s in size)
     if len(hw) != 2 or min(hw) < 1:
         raise ValueError(f"size must be a positive int or an (H, W) pair, got {size!r}")

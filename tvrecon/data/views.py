@@ -50,10 +50,8 @@ class Camera:
     def __post_init__(self) -> None:
         self.K = torch.as_tensor(self.K, dtype=torch.float32)
         self.RT = torch.as_tensor(self.RT, dtype=torch.float32)
-        if self.K.shape != (3, 3):
-            raise ValueError(f"Camera.K must have shape (3, 3), got {tuple(self.K.shape)}")
-        if self.RT.shape != (3, 4):
-            raise ValueError(f"Camera.RT must have shape (3, 4) [R | t], got {tuple(self.RT.shape)}")
+        check_shape(self.K, "(3, 3)", "Camera.K")
+        check_shape(self.RT, "(3, 4)", "Camera.RT")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ValueError(f"Camera width and height must be positive, got {self.width} x {self.height}")
         self.width, self.height = int(self.width), int(self.height)
@@ -243,7 +241,6 @@ def project_points(points: Tensor, K: Tensor, RT: Tensor) -> Tensor:
     """
     K, points = torch.as_tensor(K), torch.as_tensor(points)
     check_shape(points, "(N, 3)", "points")
-    if K.shape != (3, 3):
-        raise ValueError(f"K must have shape (3, 3), got {tuple(K.shape)}")
+    check_shape(K, "(3, 3)", "K")
     cam = world_to_camera(points, RT)  # (N, 3)
     return kornia.geometry.camera.project_points(cam, K.to(device=cam.device, dtype=cam.dtype))

@@ -54,11 +54,6 @@ def _reduce(x: Tensor, reduction: str) -> Tensor:
     raise ValueError(f"reduction must be one of {_REDUCTIONS}, got {reduction!r}")
 
 
-def _check_verts_edges(verts: Tensor, edges: Tensor) -> None:
-    check_shape(verts, "(B, V, 3)", "verts")
-    check_shape(edges, "(E, 2)", "edges")
-
-
 def edge_length_loss(verts: Tensor, edges: Tensor, reduction: str = "mean") -> Tensor:
     """Mean squared edge length.
 
@@ -66,7 +61,8 @@ def edge_length_loss(verts: Tensor, edges: Tensor, reduction: str = "mean") -> T
         verts: (B, V, 3) float; edges: (E, 2) int64.
         reduction: ``"mean"`` | ``"sum"`` over the batch, or ``"none"`` (B,).
     """
-    _check_verts_edges(verts, edges)
+    check_shape(verts, "(B, V, 3)", "verts")
+    check_shape(edges, "(E, 2)", "edges")
     d = verts[:, edges[:, 0]] - verts[:, edges[:, 1]]  # (B, E, 3)
     return _reduce(d.square().sum(-1).mean(1), reduction)
 
@@ -80,7 +76,8 @@ def laplacian_coordinates(verts: Tensor, edges: Tensor) -> Tensor:
     Returns:
         (B, V, 3) float (isolated vertices give 0).
     """
-    _check_verts_edges(verts, edges)
+    check_shape(verts, "(B, V, 3)", "verts")
+    check_shape(edges, "(E, 2)", "edges")
     V = verts.shape[1]
     src = torch.cat([edges[:, 0], edges[:, 1]])
     dst = torch.cat([edges[:, 1], edges[:, 0]])
@@ -117,10 +114,9 @@ def move_loss(verts: Tensor, before: Tensor, reduction: str = "mean") -> Tensor:
     Args:
         verts: (B, V, 3) float after; before: (B, V, 3) float before.
     """
-    if verts.dim() != 3 or verts.shape != before.shape:
-        raise ValueError(
-            f"verts and before must both have shape (B, V, 3), got {tuple(verts.shape)}, {tuple(before.shape)}"
-        )
+    check_shape(verts, "(B, V, 3)", "verts")
+    if before.shape != verts.shape:
+        raise ValueError(f"before must have the shape of verts {tuple(verts.shape)}, got {tuple(before.shape)}")
     return _reduce((verts - before).square().sum(-1).mean(1), reduction)
 
 
@@ -138,9 +134,11 @@ def normal_loss(
     Returns:
         mean over edges of ``|cos(edge, normal)|``, reduced.
     """
-    _check_verts_edges(verts, edges)
-    if gt_normals.dim() != 3 or gt_normals.shape[0] != verts.shape[0] or gt_normals.shape[-1] != 3:
-        raise ValueError(f"gt_normals must have shape (B, M, 3), got {tuple(gt_normals.shape)}")
+    check_shape(verts, "(B, V, 3)", "verts")
+    check_shape(edges, "(E, 2)", "edges")
+    check_shape(gt_normals, "(B, M, 3)", "gt_normals")
+    if gt_normals.shape[0] != verts.shape[0]:
+        raise ValueError(f"gt_normals must have shape (B, M, 3) with B={verts.shape[0]}, got {tuple(gt_normals.shape)}")
     if nearest_idx.shape != verts.shape[:2]:
         raise ValueError(
             f"nearest_idx must have shape (B, V) = {tuple(verts.shape[:2])}, got {tuple(nearest_idx.shape)}"
@@ -195,10 +193,9 @@ def mesh_loss_terms(
     verts, before, edges = out["verts"], out["verts_before"], out["edges"]
     if not (len(verts) == len(before) == len(edges)) or len(verts) == 0:
         raise ValueError("out must hold equally long, non-empty lists 'verts', 'verts_before' and 'edges'")
-    if points.dim() != 3 or points.shape[-1] != 3 or points.shape != normals.shape:
-        raise ValueError(
-            f"points and normals must both have shape (B, M, 3), got {tuple(points.shape)} and {tuple(normals.shape)}"
-        )
+    check_shape(points, "(B, M, 3)", "points")
+    if normals.shape != points.shape:
+        raise ValueError(f"normals must have the shape of points {tuple(points.shape)}, got {tuple(normals.shape)}")
     if stage_weights is not None and len(stage_weights) != len(verts):
         raise ValueError(f"stage_weights needs one weight per stage ({len(verts)}), got {list(stage_weights)}")
     w = _merge_weights(weights)

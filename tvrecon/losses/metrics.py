@@ -48,12 +48,12 @@ def sample_points_on_mesh(
         points (B, n, 3) float and face_index (B, n) int64 of the face each point lies on ((n, 3), (n,) for unbatched
         input). Degenerate meshes (zero total area) sample faces uniformly.
     """
+    check_shape(verts, "(B, V, 3) or (V, 3)", "verts")
+    check_shape(faces, "(F, 3)", "faces")
     unbatched = verts.dim() == 2
     if unbatched:
         verts = verts[None]
-    if verts.dim() != 3 or verts.shape[-1] != 3:
-        raise ValueError(f"verts must have shape (B, V, 3) or (V, 3), got {tuple(verts.shape)}")
-    if faces.dim() != 2 or faces.shape[1] != 3 or faces.shape[0] == 0:
+    if faces.shape[0] == 0:
         raise ValueError(f"faces must have shape (F, 3) with F > 0, got {tuple(faces.shape)}")
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
@@ -85,7 +85,8 @@ def sample_points_on_mesh(
 def _sample_pair(verts: Tensor, faces: Tensor, gt_points: Tensor, num_samples: int, seed: int) -> tuple[Tensor, Tensor]:
     """Seeded area-weighted samples on the prediction and a seeded subsample of the GT cloud (both (B, n, 3))."""
     check_shape(verts, "(B, V, 3)", "verts")
-    if gt_points.dim() != 3 or gt_points.shape[-1] != 3 or gt_points.shape[0] != verts.shape[0]:
+    check_shape(gt_points, "(B, M, 3)", "gt_points")
+    if gt_points.shape[0] != verts.shape[0]:
         raise ValueError(f"gt_points must have shape (B, M, 3) with B={verts.shape[0]}, got {tuple(gt_points.shape)}")
     gen = torch.Generator(device=verts.device)
     gen.manual_seed(int(seed))

@@ -27,7 +27,8 @@ def _np(x: torch.Tensor | np.ndarray) -> np.ndarray:
 
 
 def _check_points(name: str, x: np.ndarray) -> None:
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] == 0:
+    check_shape(x, "(N, 3)", name)
+    if x.shape[0] == 0:
         raise ValueError(f"{name} must have shape (N, 3) with N > 0, got {tuple(x.shape)}")
     if not np.isfinite(x).all():
         raise ValueError(f"{name} contains NaN or inf values")

@@ -12,6 +12,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.utils.geometry import rotate_to_camera, world_to_camera
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["PATCH_KEYS", "TOUCH_CONTROLS", "control_batch", "gt_to_camera", "keep_first_touches"]
 
@@ -30,11 +31,11 @@ def gt_to_camera(points: Tensor, normals: Tensor, RT: Tensor) -> tuple[Tensor, T
     Returns:
         points (B, N, 3) ``R x + t`` and normals (B, N, 3) ``R n``, float.
     """
-    if points.dim() != 3 or points.shape[-1] != 3 or normals.shape != points.shape:
-        raise ValueError(
-            f"points and normals must both have shape (B, N, 3), got {tuple(points.shape)} and {tuple(normals.shape)}"
-        )
-    if RT.shape != (points.shape[0], 3, 4):
+    check_shape(points, "(B, N, 3)", "points")
+    if normals.shape != points.shape:
+        raise ValueError(f"normals must have the shape of points {tuple(points.shape)}, got {tuple(normals.shape)}")
+    check_shape(RT, "(B, 3, 4)", "RT")
+    if RT.shape[0] != points.shape[0]:
         raise ValueError(f"RT must have shape (B, 3, 4) with B={points.shape[0]}, got {tuple(RT.shape)}")
     return world_to_camera(points, RT), rotate_to_camera(normals, RT)
 
@@ -49,8 +50,9 @@ def keep_first_touches(touch_mask: Tensor, k: int | Tensor) -> Tensor:
     Returns:
         (B, T) bool mask with at most k (or k[b]) True per row.
     """
-    if touch_mask.dim() != 2 or touch_mask.dtype != torch.bool:
-        raise ValueError(f"touch_mask must be a (B, T) bool tensor, got {tuple(touch_mask.shape)} {touch_mask.dtype}")
+    check_shape(touch_mask, "(B, T)", "touch_mask")
+    if touch_mask.dtype != torch.bool:
+        raise ValueError(f"touch_mask must be a (B, T) bool tensor, got {touch_mask.dtype}")
     if isinstance(k, Tensor):
         if k.shape != (touch_mask.shape[0],) or k.is_floating_point() or k.dtype == torch.bool:
             raise ValueError(

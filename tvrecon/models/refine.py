@@ -48,8 +48,9 @@ def refine_to_patches(
     """
     check_shape(verts, "(B, V, 3)", "verts")
     B = verts.shape[0]
-    if points.dim() != 3 or points.shape[0] != B or points.shape[-1] != 3:
-        raise ValueError(f"points must have shape ({B}, N, 3), got {tuple(points.shape)}")
+    check_shape(points, "(B, N, 3)", "points")
+    if points.shape[0] != B:
+        raise ValueError(f"points must have shape (B, N, 3) with B={B} like verts, got {tuple(points.shape)}")
     if mask.shape != points.shape[:2] or mask.dtype != torch.bool:
         raise ValueError(f"mask must be a {tuple(points.shape[:2])} bool tensor, got {tuple(mask.shape)} {mask.dtype}")
     if int(steps) < 0 or not float(lr) > 0 or not float(laplacian_weight) >= 0:

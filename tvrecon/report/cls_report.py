@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from tvrecon.report.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, data_label, data_note, mean_std
+from tvrecon.utils.shapes import check_shape
 
 __all__ = [
     "build_per_class_table",
@@ -64,7 +65,8 @@ def confusion_by_touches(results: Iterable[Mapping[str, Any]]) -> dict[int, tupl
         names = [str(c) for c in r.get("classes", [])]
         for k, matrix in r["confusion"].items():
             m = np.asarray(matrix, dtype=np.int64)
-            if m.ndim != 2 or m.shape[0] != m.shape[1]:
+            check_shape(m, "(C, C)", f"confusion matrix for {k} touches")
+            if m.shape[0] != m.shape[1]:
                 raise ValueError(f"confusion matrix for {k} touches must be square, got shape {m.shape}")
             run_names = names if len(names) == m.shape[0] else [f"class{i}" for i in range(m.shape[0])]
             if int(k) in out:
@@ -126,7 +128,8 @@ def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, t
     from tvrecon.utils.atomic import save_and_close
 
     counts = np.asarray(counts, dtype=np.float64)
-    if counts.ndim != 2 or counts.shape[0] != counts.shape[1] or counts.shape[0] != len(names):
+    check_shape(counts, "(C, C)", "counts")
+    if counts.shape[0] != counts.shape[1] or counts.shape[0] != len(names):
         raise ValueError(f"counts must be (C, C) with C = len(names) = {len(names)}, got {counts.shape}")
     rows = counts.sum(1, keepdims=True)
     share = np.divide(counts, rows, out=np.zeros_like(counts), where=rows > 0)

@@ -23,6 +23,8 @@ except AttributeError as _err:  # PyOpenGL found no library for the MUJOCO_GL ba
 
 import numpy as np  # noqa: E402
 
+from tvrecon.utils.shapes import check_shape  # noqa: E402
+
 __all__ = ["RendererUnavailable", "MujocoCamera", "open_renderer", "depth_to_world"]
 
 
@@ -54,8 +56,7 @@ def depth_to_world(depth: np.ndarray, cam_pos: np.ndarray, cam_mat: np.ndarray, 
         (H,W,3) float64 world coordinates of each pixel.
     """
     depth = np.asarray(depth, dtype=np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"depth must be (H,W), got shape {depth.shape}")
+    check_shape(depth, "(H, W)", "depth")
     H, W = depth.shape
     f = 0.5 * H / np.tan(np.deg2rad(fovy) / 2)
     u = (np.arange(W) + 0.5 - W / 2) / f

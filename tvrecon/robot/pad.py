@@ -27,6 +27,7 @@ import trimesh
 
 from tvrecon.robot.pad_config import PadConfig
 from tvrecon.robot.pad_reading import ContactPoint, FingerReading
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["LazySimulator", "PadSensor", "sense_pads", "to_pad_frame"]
 
@@ -93,8 +94,7 @@ def to_pad_frame(image: torch.Tensor, direction: np.ndarray, up: np.ndarray) -> 
     """
     from tvrecon.sim.sensor.pad import sensor_frame
 
-    if image.ndim != 3 or image.shape[0] != 3:
-        raise ValueError(f"image must be (3,H,W), got {tuple(image.shape)}")
+    check_shape(image, "(3, H, W)", "image")
     R = sensor_frame(torch.as_tensor(np.asarray(direction, dtype=np.float32)))  # (3,3) columns ex, ey, ez
     ex, ey, ez = R[:, 0].double(), R[:, 1].double(), R[:, 2].double()
     u = torch.as_tensor(np.asarray(up, dtype=np.float64))
@@ -147,8 +147,8 @@ class PadSensor:
     ) -> None:
         n = np.asarray(normal_axis, dtype=np.float64)
         u = np.asarray(up_axis, dtype=np.float64)
-        if n.shape != (3,) or u.shape != (3,):
-            raise ValueError(f"normal_axis and up_axis must be (3,), got {n.shape} and {u.shape}")
+        check_shape(n, "(3,)", "normal_axis")
+        check_shape(u, "(3,)", "up_axis")
         if np.linalg.norm(n) < 1e-9:
             raise ValueError("normal_axis must be non-zero: the pad's press direction in the link frame")
         n = n / np.linalg.norm(n)
@@ -158,8 +158,8 @@ class PadSensor:
         self.name = name
         self.use_penetration = bool(use_penetration)
         self.pad_center = None if pad_center is None else np.asarray(pad_center, dtype=np.float64)
-        if self.pad_center is not None and self.pad_center.shape != (3,):
-            raise ValueError(f"pad_center must be (3,) in the link frame, got {self.pad_center.shape}")
+        if self.pad_center is not None:
+            check_shape(self.pad_center, "(3,)", "pad_center")
         self.normal_axis, self.up_axis = n, u / np.linalg.norm(u)
         self.pad = pad or PadConfig()
         self.sim = simulator if simulator is not None else LazySimulator(self.pad)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["CameraConfig", "RGBDCamera", "GraspPlan", "plan_top_grasp", "depth_to_points"]
 
 
@@ -74,8 +76,7 @@ def depth_to_points(zbuf: np.ndarray, view: tuple | list, proj: tuple | list) ->
         (H,W,3) float64 world coordinates of each pixel.
     """
     zbuf = np.asarray(zbuf, dtype=np.float64)
-    if zbuf.ndim != 2:
-        raise ValueError(f"zbuf must be (H,W), got shape {zbuf.shape}")
+    check_shape(zbuf, "(H, W)", "zbuf")
     H, W = zbuf.shape
     V = np.asarray(view, dtype=np.float64).reshape(4, 4).T
     P = np.asarray(proj, dtype=np.float64).reshape(4, 4).T
@@ -138,8 +139,7 @@ def plan_top_grasp(
         A :class:`GraspPlan`; ``feasible`` False (with ``reason``) if the object is too wide, too small or unseen.
     """
     pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[-1] != 3:
-        raise ValueError(f"points must be (N,3), got shape {pts.shape}")
+    check_shape(pts, "(N, 3)", "points")
     nan3 = np.full(3, np.nan)
     if len(pts) < min_points:
         return GraspPlan(

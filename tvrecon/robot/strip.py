@@ -14,6 +14,7 @@ import imageio.v2 as imageio
 import matplotlib
 
 from tvrecon.utils.atomic import atomic_open, atomic_savefig
+from tvrecon.utils.shapes import check_shape
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -38,8 +39,7 @@ def tactile_to_rgb(image: np.ndarray, vmax: float, size: int = 120) -> np.ndarra
         (size,size,3) uint8 RGB.
     """
     img = np.asarray(image)
-    if img.ndim != 3 or img.shape[0] != 3:
-        raise ValueError(f"tactile image must be (3,H,W), got {img.shape}")
+    check_shape(img, "(3, H, W)", "tactile image")
     z = np.clip(img[2] / max(vmax, 1e-9), 0.0, 1.0)
     rgb = (plt.get_cmap("inferno")(z)[..., :3] * 255).astype(np.uint8)
     return np.asarray(Image.fromarray(rgb).resize((size, size), Image.BILINEAR))

@@ -118,7 +118,8 @@ def save_sequence_png(
         the written path.
     """
     arr = frames.detach().cpu().numpy() if isinstance(frames, Tensor) else np.asarray(frames)
-    if arr.ndim != 4 or arr.shape[1] != 3 or arr.shape[0] < 1:
+    check_shape(arr, "(K, 3, H, W)", "frames")
+    if arr.shape[0] < 1:
         raise ValueError(f"frames must have shape (K, 3, H, W) with K >= 1, got {tuple(arr.shape)}")
     K = arr.shape[0]
     if steps is not None and len(steps) != K:
@@ -165,7 +166,8 @@ def save_ply(points: Tensor | np.ndarray, path: str | Path, values: Tensor | np.
         the written path.
     """
     pts = points.detach().cpu().numpy() if isinstance(points, Tensor) else np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+    check_shape(pts, "(P, 3)", "points")
+    if len(pts) == 0:
         raise ValueError(f"points must have shape (P, 3) with P > 0, got {tuple(pts.shape)}")
     colors = None
     if values is not None:
@@ -192,8 +194,7 @@ def _np(x: Tensor | np.ndarray) -> np.ndarray:
 
 
 def _draw_force(ax, field: np.ndarray):
-    if field.ndim != 3 or field.shape[-1] != 3:
-        raise ValueError(f"force field must have shape (H, W, 3), got {field.shape}")
+    check_shape(field, "(H, W, 3)", "force field")
     img = field.transpose(2, 0, 1)
     return _draw_tactile(ax, img, max(float(img[2].max()), 1e-12), arrows=True, cmap="magma")
 
@@ -205,8 +206,10 @@ def auto_arrow_gain(displacement: np.ndarray, spacing: float) -> float:
 
 
 def _draw_markers(ax, dots: np.ndarray, rest: np.ndarray, disp: np.ndarray, pixels_per_taxel: int, arrow_gain: float):
-    if dots.ndim != 2 or rest.shape != disp.shape or rest.ndim != 2 or rest.shape[1] != 2:
-        raise ValueError(f"expected dots (h, w) and rest, disp (M, 2), got {dots.shape}, {rest.shape}, {disp.shape}")
+    check_shape(dots, "(h, w)", "dots")
+    check_shape(rest, "(M, 2)", "rest")
+    if disp.shape != rest.shape:
+        raise ValueError(f"disp must have the shape of rest {rest.shape}, got {disp.shape}")
     k = float(pixels_per_taxel)
     ax.imshow(1.0 - 0.85 * dots, cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="bilinear")
     px = (rest + 0.5) * k - 0.5  # taxel -> output pixel coordinates
@@ -257,8 +260,7 @@ def save_markers_png(
 def save_rgb_png(rgb: Tensor | np.ndarray, path: str | Path, upscale: int = 4) -> Path:
     """(3, H, W) RGB in [0, 1] as a plain PNG, row 0 at the bottom (y up), scaled up ``upscale`` times."""
     a = _np(rgb)
-    if a.ndim != 3 or a.shape[0] != 3:
-        raise ValueError(f"rgb must have shape (3, H, W), got {a.shape}")
+    check_shape(a, "(3, H, W)", "rgb")
     pix = (np.clip(a.transpose(1, 2, 0)[::-1], 0, 1) * 255 + 0.5).astype(np.uint8)
     im = Image.fromarray(np.ascontiguousarray(pix))
     if int(upscale) > 1:

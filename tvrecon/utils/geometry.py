@@ -17,6 +17,8 @@ import trimesh
 from kornia.geometry.linalg import transform_points
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["check_mesh", "read_mesh_file", "perpendicular_basis", "rt_to_matrix", "world_to_camera", "rotate_to_camera"]
 
 
@@ -114,8 +116,7 @@ def rt_to_matrix(RT: Tensor) -> Tensor:
     Returns:
         (B, 4, 4) float, last row ``(0, 0, 0, 1)``.
     """
-    if RT.dim() != 3 or RT.shape[1:] != (3, 4):
-        raise ValueError(f"RT must have shape (B, 3, 4), got {tuple(RT.shape)}")
+    check_shape(RT, "(B, 3, 4)", "RT")
     bottom = torch.zeros(RT.shape[0], 1, 4, dtype=RT.dtype, device=RT.device)
     bottom[:, 0, 3] = 1.0
     return torch.cat([RT, bottom], dim=1)
@@ -136,13 +137,12 @@ def world_to_camera(points: Tensor, RT: Tensor) -> Tensor:
     if not points.is_floating_point():
         points = points.float()
     RT = torch.as_tensor(RT).to(device=points.device, dtype=points.dtype)
-    if points.dim() == 2 and points.shape[-1] == 3:
-        if RT.shape != (3, 4):
-            raise ValueError(f"RT must have shape (3, 4) [R | t] (world->camera), got {tuple(RT.shape)}")
+    check_shape(points, "(B, N, 3) or (N, 3)", "points")
+    if points.dim() == 2:
+        check_shape(RT, "(3, 4)", "RT")
         return world_to_camera(points[None], RT[None])[0]
-    if points.dim() != 3 or points.shape[-1] != 3:
-        raise ValueError(f"points must have shape (B, N, 3) or (N, 3), got {tuple(points.shape)}")
-    if RT.dim() != 3 or RT.shape[1:] != (3, 4) or RT.shape[0] != points.shape[0]:
+    check_shape(RT, "(B, 3, 4)", "RT")
+    if RT.shape[0] != points.shape[0]:
         raise ValueError(f"RT must have shape (B, 3, 4) with B={points.shape[0]}, got {tuple(RT.shape)}")
     return transform_points(rt_to_matrix(RT), points)
 

@@ -19,6 +19,8 @@ from scipy.interpolate import PchipInterpolator
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
+from tvrecon.utils.shapes import check_shape
+
 log = logging.getLogger(__name__)
 
 SECTIONS = 48  # angular resolution of revolved and cylindrical parts
@@ -95,8 +97,9 @@ def lathe(profile: ArrayLike, sections: int = SECTIONS) -> trimesh.Trimesh:
     top centre, or a closed loop that stays off the axis (a ring). The result is watertight with outward normals.
     """
     p = np.asarray(profile, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3:
-        raise ValueError(f"lathe profile must be (n>=3, 2) (radius, z) points, got shape {p.shape}")
+    check_shape(p, "(n, 2)", "lathe profile")
+    if len(p) < 3:
+        raise ValueError(f"lathe profile must have shape (n, 2) with n >= 3 (radius, z) points, got {p.shape}")
     p[:, 0] = np.maximum(p[:, 0], 0.0)
     # drop consecutive duplicates, which would create degenerate faces
     keep = np.ones(len(p), dtype=bool)
@@ -158,8 +161,9 @@ def tube(
     """
     p = np.asarray(path, dtype=float)
     rad = np.asarray(radii, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2 or rad.shape != (len(p),):
-        raise ValueError(f"tube path must be (n,3) with radii (n,), got {p.shape} and {rad.shape}")
+    check_shape(p, "(n, 3)", "tube path")
+    if len(p) < 2 or rad.shape != (len(p),):
+        raise ValueError(f"tube path must have shape (n, 3) with n >= 2 and radii (n,), got {p.shape} and {rad.shape}")
     tang = np.gradient(p, axis=0)
     tang /= np.linalg.norm(tang, axis=1, keepdims=True)
     ref = np.array([0.0, 0.0, 1.0]) if abs(tang[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])

@@ -100,8 +100,7 @@ class ResNet18Backbone(nn.Module):
             list of 4 float tensors (B, 64, H/4, W/4), (B, 128, H/8, W/8), (B, 256, H/16, W/16), (B, 512, H/32, W/32)
             (sizes rounded up by the strided convolutions).
         """
-        if x.dim() != 4 or x.shape[1] != self.in_channels:
-            raise ValueError(f"expected input of shape (B, {self.in_channels}, H, W), got {tuple(x.shape)}")
+        check_shape(x, f"(B, {self.in_channels}, H, W)", "x")
         feats = []
         x = self.stem(x)
         for layer in self.stages:

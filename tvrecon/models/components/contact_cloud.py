@@ -108,8 +108,9 @@ class ContactCloudClassifier(nn.Module):
         B, N = patch_points.shape[:2]
         if N > self.num_touches:
             raise ValueError(f"got N={N} touches but the classifier takes at most num_touches={self.num_touches}")
-        if tactile.dim() != 5 or tactile.shape[:3] != (B, N, 3):
-            raise ValueError(f"tactile must have shape ({B}, {N}, 3, h, w), got {tuple(tactile.shape)}")
+        check_shape(tactile, "(B, N, 3, h, w)", "tactile")
+        if tactile.shape[:2] != (B, N):
+            raise ValueError(f"tactile must have B, N = {B}, {N} like patch_points, got {tuple(tactile.shape)}")
         touch_mask = real_touches(touch_mask, B, N, patch_points.device)
         cloud = select_patch_points(patch_points, patch_normals, patch_mask, touch_mask, self.points_per_touch)
         m = cloud.mask.to(cloud.points.dtype)[..., None]  # (B, P, 1)

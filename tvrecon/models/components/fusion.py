@@ -223,8 +223,11 @@ def place_embeddings(
         raise ValueError(f"region must be an odd positive integer (1, 3, 5, ...), got {region}")
     check_shape(feature, "(B, C, h, w)", "feature")
     B, C, h, w = feature.shape
+    check_shape(embedding, "(N, C)", "embedding")
+    check_shape(batch_index, "(N,)", "batch_index")
+    check_shape(uv, "(N, 2)", "uv")
     N = embedding.shape[0]
-    if embedding.shape != (N, C) or batch_index.shape != (N,) or uv.shape != (N, 2):
+    if embedding.shape[1] != C or batch_index.shape[0] != N or uv.shape[0] != N:
         raise ValueError(
             f"expected embedding (N, {C}), batch_index (N,), uv (N, 2); got {tuple(embedding.shape)}, "
             f"{tuple(batch_index.shape)}, {tuple(uv.shape)}"
@@ -358,8 +361,7 @@ class TactileVisualFusion(nn.Module):
             (B, C_j, h_j, w_j) float fused visual feature map.
         """
         C = self.visual_channels[stage]
-        if visual.dim() != 4 or visual.shape[1] != C:
-            raise ValueError(f"visual stage {stage} must have shape (B, {C}, h, w), got {tuple(visual.shape)}")
+        check_shape(visual, f"(B, {C}, h, w)", f"visual stage {stage}")
         n = placement.batch_index.shape[0]
         if n == 0:
             return visual

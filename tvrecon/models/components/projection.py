@@ -29,11 +29,6 @@ __all__ = [
 ]
 
 
-def _check_K(K: Tensor, batch: int) -> None:
-    if K.dim() != 3 or K.shape[1:] != (3, 3) or K.shape[0] != batch:
-        raise ValueError(f"K must have shape (B, 3, 3) with B={batch}, got {tuple(K.shape)}")
-
-
 def camera_to_pixel(points_cam: Tensor, K: Tensor, min_depth: float = 1e-6) -> Tensor:
     """Project camera-frame points to pixel coordinates with kornia.
 
@@ -49,7 +44,9 @@ def camera_to_pixel(points_cam: Tensor, K: Tensor, min_depth: float = 1e-6) -> T
         (B, N, 2) float pixel coordinates ``(u, v)``.
     """
     check_shape(points_cam, "(B, N, 3)", "points_cam")
-    _check_K(K, points_cam.shape[0])
+    check_shape(K, "(B, 3, 3)", "K")
+    if K.shape[0] != points_cam.shape[0]:
+        raise ValueError(f"K must have shape (B, 3, 3) with B={points_cam.shape[0]}, got {tuple(K.shape)}")
     z = points_cam[..., 2:].clamp(min=min_depth)
     safe = torch.cat([points_cam[..., :2], z], dim=-1)
     n = safe.shape[1]

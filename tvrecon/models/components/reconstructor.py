@@ -26,8 +26,10 @@ MODES = ("fusion", "visual_only", "tactile_only")
 def check_view(image: Tensor, K: Tensor, RT: Tensor) -> tuple[int, int]:
     """Check a batch of views: image (B, 3, H, W), K (B, 3, 3), RT (B, 3, 4). Returns (H, W); ValueError otherwise."""
     check_shape(image, "(B, 3, H, W)", "image")
+    check_shape(K, "(B, 3, 3)", "K")
+    check_shape(RT, "(B, 3, 4)", "RT")
     B = image.shape[0]
-    if K.shape != (B, 3, 3) or RT.shape != (B, 3, 4):
+    if K.shape[0] != B or RT.shape[0] != B:
         raise ValueError(f"K must be (B, 3, 3) and RT (B, 3, 4) with B={B}, got {tuple(K.shape)}, {tuple(RT.shape)}")
     return int(image.shape[2]), int(image.shape[3])
 
@@ -147,7 +149,9 @@ class TactileVisualReconstructor(nn.Module):
         B, T = tactile.shape[:2]
         if positions is None or directions is None:
             raise ValueError("positions (B, T, 3) and directions (B, T, 3) are required with tactile")
-        if positions.shape != (B, T, 3) or directions.shape != (B, T, 3):
+        check_shape(positions, "(B, T, 3)", "positions")
+        check_shape(directions, "(B, T, 3)", "directions")
+        if positions.shape[:2] != (B, T) or directions.shape[:2] != (B, T):
             raise ValueError(
                 f"positions and directions must have shape (B, T, 3) = ({B}, {T}, 3), got "
                 f"{tuple(positions.shape)} and {tuple(directions.shape)}"

@@ -75,10 +75,9 @@ def select_patch_points(
     Returns:
         :class:`TouchPoints` with P = T * m.
     """
-    if points.dim() != 4 or points.shape[-1] != 3 or normals.shape != points.shape:
-        raise ValueError(
-            f"points and normals must have shape (B, T, Q, 3), got {tuple(points.shape)} and {tuple(normals.shape)}"
-        )
+    check_shape(points, "(B, T, Q, 3)", "points")
+    if normals.shape != points.shape:
+        raise ValueError(f"normals must have the shape of points {tuple(points.shape)}, got {tuple(normals.shape)}")
     B, T, Q, _ = points.shape
     if patch_mask.shape != (B, T, Q) or patch_mask.dtype != torch.bool:
         raise ValueError(f"patch_mask must be a ({B}, {T}, {Q}) bool tensor, got {tuple(patch_mask.shape)}")

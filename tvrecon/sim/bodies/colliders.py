@@ -15,6 +15,7 @@ import trimesh
 from torch import Tensor
 
 from tvrecon.sim.bodies.mesh_region import below_first_hit, clip_to_box
+from tvrecon.utils.shapes import check_shape
 
 __all__ = [
     "Collider",
@@ -46,15 +47,14 @@ class Collider(Protocol):
 
 
 def _check_points(points: Tensor) -> None:
-    if not isinstance(points, Tensor) or points.dim() != 2 or points.shape[1] != 3:
-        shape = tuple(points.shape) if isinstance(points, Tensor) else type(points).__name__
-        raise ValueError(f"points must be an (N, 3) tensor, got {shape}")
+    if not isinstance(points, Tensor):
+        raise ValueError(f"points must be an (N, 3) tensor, got {type(points).__name__}")
+    check_shape(points, "(N, 3)", "points")
 
 
 def _vec3(value: Sequence[float] | Tensor | np.ndarray, name: str) -> Tensor:
     t = torch.as_tensor(np.asarray(value, dtype=np.float64) if not isinstance(value, Tensor) else value)
-    if t.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,), got {tuple(t.shape)}")
+    check_shape(t, "(3,)", name)
     if not bool(torch.isfinite(t).all()):
         raise ValueError(f"{name} must be finite, got {t.tolist()}")
     return t
@@ -175,7 +175,9 @@ class MeshCollider:
             lo_pt, hi_pt = mesh.bounds[0] - 3 * dx, mesh.bounds[1] + 3 * dx
         else:
             lo_pt, hi_pt = (np.asarray(r, dtype=np.float64) for r in region)
-            if lo_pt.shape != (3,) or hi_pt.shape != (3,) or not (hi_pt >= lo_pt).all():
+            check_shape(lo_pt, "(3,)", "region lo")
+            check_shape(hi_pt, "(3,)", "region hi")
+            if not (hi_pt >= lo_pt).all():
                 raise ValueError(f"region must be (lo (3,), hi (3,)) with hi >= lo, got {region}")
         lo_i = np.floor(lo_pt / dx).astype(np.int64)
         hi_i = np.ceil(hi_pt / dx).astype(np.int64)

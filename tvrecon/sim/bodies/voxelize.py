@@ -20,6 +20,7 @@ from torch import Tensor
 
 from tvrecon.utils.atomic import atomic_write_bytes
 from tvrecon.utils.geometry import check_mesh, perpendicular_basis
+from tvrecon.utils.shapes import check_shape
 
 __all__ = [
     "VoxelGrid",
@@ -123,8 +124,7 @@ def carve_points(
     """
     check_mesh(mesh)
     pts = points.detach().cpu().double().numpy() if isinstance(points, Tensor) else np.asarray(points, np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points must be (N, 3), got {pts.shape}")
+    check_shape(pts, "(N, 3)", "points")
     if not pixel > 0:
         raise ValueError(f"pixel must be > 0, got {pixel}")
     tol = pixel if tol is None else tol
@@ -230,8 +230,7 @@ def occupancy_sdf(occupancy: np.ndarray, pitch: float) -> np.ndarray:
         (X, Y, Z) float64 signed distance, < 0 inside.
     """
     occ = np.asarray(occupancy, dtype=bool)
-    if occ.ndim != 3:
-        raise ValueError(f"occupancy must be a 3-D (X, Y, Z) array, got shape {occ.shape}")
+    check_shape(occ, "(X, Y, Z)", "occupancy")
     if not occ.any():
         raise ValueError("occupancy is empty: nothing is solid")
     if occ.all():
@@ -252,6 +251,5 @@ def save_particles_ply(path: str | Path, x: Tensor | np.ndarray) -> Path:
         The written path.
     """
     pts = x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"x must be (P, 3), got {pts.shape}")
+    check_shape(pts, "(P, 3)", "x")
     return atomic_write_bytes(path, trimesh.PointCloud(pts.astype(np.float64)).export(file_type="ply"))

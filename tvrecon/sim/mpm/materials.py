@@ -15,6 +15,8 @@ import math
 import torch
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = [
     "lame_parameters",
     "p_wave_speed",
@@ -37,10 +39,11 @@ def lame_parameters(E: float | Tensor, nu: float | Tensor) -> tuple[float | Tens
     Returns:
         (mu, lam) of the same kind as the inputs (floats or 0-dim tensors).
     """
+    for value, name in ((E, "E"), (nu, "nu")):
+        if isinstance(value, Tensor):
+            check_shape(value, "()", name)
     e_val = float(E.detach()) if isinstance(E, Tensor) else float(E)
     nu_val = float(nu.detach()) if isinstance(nu, Tensor) else float(nu)
-    if isinstance(E, Tensor) and E.dim() != 0 or isinstance(nu, Tensor) and nu.dim() != 0:
-        raise ValueError("E and nu must be python floats or 0-dim tensors")
     if not e_val > 0:
         raise ValueError(f"Young's modulus E must be > 0, got {e_val}")
     if not 0.0 <= nu_val < 0.5:
@@ -68,9 +71,9 @@ def p_wave_speed(E: float | Tensor, nu: float | Tensor, rho: float) -> float:
 
 
 def _check_mats(F: Tensor, name: str = "F") -> None:
-    if not isinstance(F, Tensor) or F.dim() != 3 or F.shape[1:] != (3, 3):
-        shape = tuple(F.shape) if isinstance(F, Tensor) else type(F).__name__
-        raise ValueError(f"{name} must be a (P, 3, 3) tensor, got {shape}")
+    if not isinstance(F, Tensor):
+        raise ValueError(f"{name} must be a (P, 3, 3) tensor, got {type(F).__name__}")
+    check_shape(F, "(P, 3, 3)", name)
 
 
 # cof(F)_k = F[a_k] F[b_k] - F[c_k] F[d_k] over the row-major entries f00..f22 (rows: r1 x r2, r2 x r0, r0 x r1)

@@ -9,6 +9,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.mpm.materials import p_wave_speed
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["CONTACT_MODES", "MPMConfig", "ParticleState", "cfl_dt"]
 
@@ -101,8 +102,9 @@ class ParticleState:
             rho: density.
             batch: (P,) integer scene index in [0, B) or None.
         """
-        if not isinstance(x0, Tensor) or x0.dim() != 2 or x0.shape[1] != 3:
-            raise ValueError(f"x0 must be a (P, 3) tensor, got {tuple(getattr(x0, 'shape', ()))}")
+        if not isinstance(x0, Tensor):
+            raise ValueError(f"x0 must be a (P, 3) tensor, got {type(x0).__name__}")
+        check_shape(x0, "(P, 3)", "x0")
         if not x0.is_floating_point():
             raise ValueError(f"x0 must be a float tensor, got {x0.dtype}")
         P = x0.shape[0]

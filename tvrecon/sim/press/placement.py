@@ -23,6 +23,7 @@ from tvrecon.sim.bodies import colliders as _colliders
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.sensor.pad import SensorConfig, pad_lattice, sensor_frame
 from tvrecon.utils.geometry import check_mesh, perpendicular_basis
+from tvrecon.utils.shapes import check_shape
 
 #: Cells beyond the pad's thickness and start gap in front of the touch point where the footprint rays start: the
 #: space the pad needs free in front of the surface (shared by :func:`place_touch` and :func:`pad_footprint`).
@@ -64,8 +65,7 @@ def as_vec3(value, name: str) -> Tensor:
     """``value`` as a finite (3,) float32 CPU tensor; ValueError naming ``name`` otherwise."""
     t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not isinstance(value, Tensor) else value)
     t = t.detach().to(torch.float32).cpu()
-    if t.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,), got {tuple(t.shape)}")
+    check_shape(t, "(3,)", name)
     if not bool(torch.isfinite(t).all()):
         raise ValueError(f"{name} must be finite, got {t.tolist()}")
     return t

@@ -18,13 +18,15 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["column_force_field", "normal_shear", "field_total"]
 
 
 def _check_field(field: Tensor, name: str = "field") -> None:
-    if not isinstance(field, Tensor) or field.ndim < 3 or field.shape[-1] != 3:
-        shape = tuple(field.shape) if isinstance(field, Tensor) else type(field).__name__
-        raise ValueError(f"{name} must be a (..., H, W, 3) tensor, got {shape}")
+    if not isinstance(field, Tensor):
+        raise ValueError(f"{name} must be a (..., H, W, 3) tensor, got {type(field).__name__}")
+    check_shape(field, "(..., H, W, 3)", name)
     if not bool(torch.isfinite(field).all()):
         raise ValueError(f"{name} contains NaN or infinite values")
 
@@ -41,10 +43,10 @@ def column_force_field(particle_force: Tensor, resolution: tuple[int, int], laye
     """
     H, W = (int(r) for r in resolution)
     L = int(layers)
-    if particle_force.ndim < 2 or tuple(particle_force.shape[-2:]) != (L * H * W, 3):
+    check_shape(particle_force, "(..., P, 3)", "particle_force")
+    if particle_force.shape[-2] != L * H * W:
         raise ValueError(
-            f"particle_force must be (..., P, 3) with P = layers * H * W = {L * H * W}, "
-            f"got {tuple(particle_force.shape)}"
+            f"particle_force must have P = layers * H * W = {L * H * W} particles, got {tuple(particle_force.shape)}"
         )
     if not bool(torch.isfinite(particle_force).all()):
         raise ValueError("particle_force contains NaN or infinite values")
@@ -77,6 +79,5 @@ def field_total(field: Tensor, frame: Tensor | None = None) -> Tensor:
     total = field.sum((-3, -2))
     if frame is None:
         return total
-    if frame.shape[-2:] != (3, 3):
-        raise ValueError(f"frame must be (..., 3, 3), got {tuple(frame.shape)}")
+    check_shape(frame, "(..., 3, 3)", "frame")
     return (frame.to(total) @ total[..., None])[..., 0]

@@ -19,21 +19,23 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["marker_grid", "marker_positions", "marker_displacements", "render_markers"]
 
 
 def _check_image(image: Tensor) -> None:
-    if not isinstance(image, Tensor) or image.ndim < 3 or image.shape[-3] != 3:
-        shape = tuple(image.shape) if isinstance(image, Tensor) else type(image).__name__
-        raise ValueError(f"image must be a (..., 3, H, W) displacement tensor, got {shape}")
+    if not isinstance(image, Tensor):
+        raise ValueError(f"image must be a (..., 3, H, W) displacement tensor, got {type(image).__name__}")
+    check_shape(image, "(..., 3, H, W)", "image")
     if not bool(torch.isfinite(image).all()):
         raise ValueError("image contains NaN or infinite values")
 
 
-def _check_points(points: Tensor, name: str) -> None:
-    if not isinstance(points, Tensor) or points.ndim < 2 or points.shape[-1] != 2:
-        shape = tuple(points.shape) if isinstance(points, Tensor) else type(points).__name__
-        raise ValueError(f"{name} must be a (..., M, 2) tensor of (x, y) taxel coordinates, got {shape}")
+def _check_points(points: Tensor, name: str, spec: str = "(..., M, 2)") -> None:
+    if not isinstance(points, Tensor):
+        raise ValueError(f"{name} must be a {spec} tensor of (x, y) taxel coordinates, got {type(points).__name__}")
+    check_shape(points, spec, name)
     if not bool(torch.isfinite(points).all()):
         raise ValueError(f"{name} contains NaN or infinite values")
 
@@ -90,9 +92,7 @@ def marker_positions(
         (..., M, 2) image coordinates in taxels (at rest equal to ``markers``).
     """
     _check_image(image)
-    _check_points(markers, "markers")
-    if markers.ndim != 2:
-        raise ValueError(f"markers must be (M, 2), got {tuple(markers.shape)}")
+    _check_points(markers, "markers", "(M, 2)")
     if not float(taxel_spacing) > 0:
         raise ValueError(f"taxel_spacing must be > 0 cells, got {taxel_spacing}")
     u = _sample(image, markers)  # (..., M, 3) cells

@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.utils import config_utils
+from tvrecon.utils.shapes import check_shape
 
 ALPHA_PROFILES = ("clamped", "linear")
 
@@ -170,9 +171,10 @@ def contact_layer(x: Tensor, cfg: SensorConfig) -> Tensor:
     Returns:
         (..., H, W, 3) view of the first H * W particles.
     """
+    check_shape(x, "(..., P, 3)", "x")
     H, W = cfg.resolution
     if x.shape[-2] < H * W:
-        raise ValueError(f"expected (..., P, 3) with P >= H*W = {H * W}, got {tuple(x.shape)}")
+        raise ValueError(f"x must have shape (..., P, 3) with P >= H*W = {H * W}, got {tuple(x.shape)}")
     return x[..., : H * W, :].reshape(*x.shape[:-2], H, W, 3)
 
 
@@ -191,8 +193,7 @@ def sensor_frame(direction: Tensor) -> Tensor:
         world = R @ local.
     """
     d = torch.as_tensor(direction, dtype=torch.float32)
-    if d.shape != (3,):
-        raise ValueError(f"direction must have shape (3,), got {tuple(d.shape)}")
+    check_shape(d, "(3,)", "direction")
     if not bool(torch.isfinite(d).all()):
         raise ValueError(f"direction must be finite, got {d.tolist()}")
     n = torch.linalg.vector_norm(d)

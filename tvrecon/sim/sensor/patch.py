@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.sensor.pad import SensorConfig, pad_lattice, sensor_frame
+from tvrecon.utils.shapes import check_shape
 
 __all__ = ["ContactPatch", "contact_patch"]
 
@@ -78,20 +79,20 @@ def contact_patch(
     Returns:
         :class:`ContactPatch` with points/normals (H*W, 3) or (T, H*W, 3) float32 and mask (H*W,) or (T, H*W).
     """
+    H, W = sensor.resolution
+    check_shape(image, "(3, H, W) or (T, 3, H, W)", "image")
+    if tuple(image.shape[-2:]) != (H, W):
+        raise ValueError(f"image must be at the sensor's resolution ({H}, {W}), got {tuple(image.shape)}")
     single = image.dim() == 3
     images = image[None] if single else image
     pos = torch.as_tensor(position, dtype=torch.float32)
     dirs = torch.as_tensor(direction, dtype=torch.float32)
+    check_shape(pos, "(3,) or (T, 3)", "position")
+    check_shape(dirs, "(3,) or (T, 3)", "direction")
     pos = pos[None] if pos.dim() == 1 else pos
     dirs = dirs[None] if dirs.dim() == 1 else dirs
-    H, W = sensor.resolution
-    if images.dim() != 4 or tuple(images.shape[1:]) != (3, H, W):
-        raise ValueError(
-            f"image must have shape (3, {H}, {W}) or (T, 3, {H}, {W}) (the sensor's resolution), "
-            f"got {tuple(image.shape)}"
-        )
     T = images.shape[0]
-    if pos.shape != (T, 3) or dirs.shape != (T, 3):
+    if pos.shape[0] != T or dirs.shape[0] != T:
         raise ValueError(
             f"position and direction must have shape ({T}, 3) like the images, got {tuple(pos.shape)} and "
             f"{tuple(dirs.shape)}"

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 __all__ = ["Light", "DEFAULT_LIGHTS", "surface_normals", "shade", "render_rgb"]
 
 
@@ -68,9 +70,11 @@ def surface_normals(height: Tensor, spacing: float = 1.0) -> Tensor:
     Returns:
         (..., 3, H, W) unit normals ``(-dh/dx, -dh/dy, 1) / norm`` (x along columns, y along rows).
     """
-    if not isinstance(height, Tensor) or height.ndim < 2 or min(height.shape[-2:]) < 2:
-        shape = tuple(height.shape) if isinstance(height, Tensor) else type(height).__name__
-        raise ValueError(f"height must be a (..., H, W) tensor with H, W >= 2, got {shape}")
+    if not isinstance(height, Tensor):
+        raise ValueError(f"height must be a (..., H, W) tensor, got {type(height).__name__}")
+    check_shape(height, "(..., H, W)", "height")
+    if min(height.shape[-2:]) < 2:
+        raise ValueError(f"height must have H, W >= 2, got {tuple(height.shape)}")
     if not height.is_floating_point():
         height = height.float()
     if not bool(torch.isfinite(height).all()):
@@ -101,9 +105,9 @@ def shade(
     Returns:
         (..., 3, H, W) RGB in [0, 1], the normals' dtype and device.
     """
-    if not isinstance(normals, Tensor) or normals.ndim < 3 or normals.shape[-3] != 3:
-        shape = tuple(normals.shape) if isinstance(normals, Tensor) else type(normals).__name__
-        raise ValueError(f"normals must be a (..., 3, H, W) tensor, got {shape}")
+    if not isinstance(normals, Tensor):
+        raise ValueError(f"normals must be a (..., 3, H, W) tensor, got {type(normals).__name__}")
+    check_shape(normals, "(..., 3, H, W)", "normals")
     if not bool(torch.isfinite(normals).all()):
         raise ValueError("normals contain NaN or infinite values")
     lights = list(lights)
@@ -148,9 +152,9 @@ def render_rgb(
     Returns:
         (..., 3, H, W) RGB in [0, 1]; a flat (or undeformed) pad gives a uniform image.
     """
-    if not isinstance(image, Tensor) or image.ndim < 3 or image.shape[-3] != 3:
-        shape = tuple(image.shape) if isinstance(image, Tensor) else type(image).__name__
-        raise ValueError(f"image must be a (..., 3, H, W) displacement tensor, got {shape}")
+    if not isinstance(image, Tensor):
+        raise ValueError(f"image must be a (..., 3, H, W) displacement tensor, got {type(image).__name__}")
+    check_shape(image, "(..., 3, H, W)", "image")
     if not (math.isfinite(float(height_gain)) and float(height_gain) > 0):
         raise ValueError(f"height_gain must be > 0, got {height_gain}")
     normals = surface_normals(image[..., 2, :, :] * float(height_gain), spacing=taxel_spacing)

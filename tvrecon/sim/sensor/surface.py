@@ -12,6 +12,8 @@ from scipy.ndimage import gaussian_filter
 from skimage.measure import marching_cubes
 from torch import Tensor
 
+from tvrecon.utils.shapes import check_shape
+
 
 def pad_surface(points: Tensor | np.ndarray, spacing: float, level: float = 0.5, upsample: int = 2) -> trimesh.Trimesh:
     """Surface mesh around a cloud of particles on a (deformed) lattice.
@@ -25,7 +27,8 @@ def pad_surface(points: Tensor | np.ndarray, spacing: float, level: float = 0.5,
         a trimesh.Trimesh in the frame of ``points`` (outward normals).
     """
     pts = points.detach().cpu().numpy() if isinstance(points, Tensor) else np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4:
+    check_shape(pts, "(P, 3)", "points")
+    if len(pts) < 4:
         raise ValueError(f"points must have shape (P, 3) with P >= 4, got {tuple(pts.shape)}")
     if not np.isfinite(pts).all():
         raise ValueError("points contain NaN or infinite values")
