@@ -144,6 +144,26 @@ def test_recon_random_touch_count_in_range() -> None:
     assert counts.shape == (200,) and set(counts.tolist()) == {3, 4}  # drawn per sample, both ends reached
     with pytest.raises(ValueError, match="min_touches <= max_touches"):
         ReconstructionModule(_net(), _optimizer, min_touches=5, max_touches=4)
+    free = ReconstructionModule(_net(), _optimizer, min_touches=0, max_touches=2)
+    assert set(free._touch_counts(200).tolist()) == {0, 1, 2}  # some samples train with no touch at all
+    with pytest.raises(ValueError, match="tactile_only model needs at least one touch"):
+        ReconstructionModule(_net("tactile_only"), _optimizer, min_touches=0)
+
+
+@pytest.mark.filterwarnings("ignore:You are trying to `self.log")
+def test_recon_training_step_with_touch_free_samples() -> None:
+    """min_touches=0: a batch mixing touch-free and touched samples trains; a batch drawn all touch-free runs the
+    model's own no-touch path."""
+    torch.manual_seed(0)
+    model = ReconstructionModule(_net(), _optimizer, min_touches=0, max_touches=10)
+    dm = SyntheticReconDataModule(batch_size=2, n=2)
+    dm.setup("fit")
+    sample = next(iter(dm.train_dataloader()))
+    for counts in (torch.tensor([0, 3]), torch.tensor([0, 0])):
+        model._touch_counts = lambda n, c=counts: c  # type: ignore[method-assign]
+        loss = model.training_step(sample, 0)
+        assert torch.isfinite(loss)
+        loss.backward()
 
 
 @pytest.mark.slow

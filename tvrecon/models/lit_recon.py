@@ -59,7 +59,8 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         stage_weights: factor of each deformation stage's loss (None = 1 for every stage).
         laplacian_stage_weights: extra factor of the Laplacian term per stage (Pixel2Mesh 0.2, 1, 1).
         move_from_stage: first deformation stage with the move term (Pixel2Mesh 1).
-        min_touches, max_touches: range of the per-batch number of touches in training.
+        min_touches, max_touches: range of the per-sample number of touches in training; ``min_touches=0`` trains on
+            some touch-free samples (the model must then also answer with no touch; not for ``tactile_only``).
         eval_touches: touch counts of the test modes (Table 3 columns).
         metric_points: points sampled on each surface for the chamfer metric (1,000 in the paper).
         fscore_thresholds: distance thresholds of the F-scores (Pixel2Mesh tau = 0.01 and 2 tau).
@@ -112,8 +113,10 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
         self.optimizer_factory = optimizer
         self.scheduler_factory = scheduler
-        if not 1 <= min_touches <= max_touches:
-            raise ValueError(f"need 1 <= min_touches <= max_touches, got {min_touches} and {max_touches}")
+        if not 0 <= min_touches <= max_touches or max_touches < 1:
+            raise ValueError(
+                f"need 0 <= min_touches <= max_touches and max_touches >= 1, got {min_touches} and {max_touches}"
+            )
         if any(int(k) < 1 for k in eval_touches):
             raise ValueError(f"eval_touches must be positive touch counts, got {list(eval_touches)}")
         self.net = net
@@ -121,6 +124,8 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         if net_mode not in MODALITY:
             raise ValueError(f"net.mode must be one of {sorted(MODALITY)}, got {net_mode!r}")
         self.modality = MODALITY[net_mode]
+        if self.modality == "tactile" and min_touches < 1:
+            raise ValueError("the tactile_only model needs at least one touch per sample: set min_touches >= 1")
         self.criterion = MeshLoss(
             weights=dict(loss_weights or {}),
             stage_weights=stage_weights,
