@@ -15,6 +15,7 @@ import math
 import torch
 from torch import Tensor
 
+from tvrecon.sim.mpm.small_matmul import matmul3
 from tvrecon.utils.shapes import check_shape
 
 __all__ = [
@@ -226,4 +227,4 @@ def fixed_corotated_kirchhoff(F: Tensor, mu: float | Tensor, lam: float | Tensor
         R = polar_decomposition(F)
     J = det3(F)
     eye = torch.eye(3, dtype=F.dtype, device=F.device)
-    return 2.0 * mu * torch.matmul(F - R, F.transpose(1, 2)) + (lam * (J - 1.0) * J)[:, None, None] * eye
+    return 2.0 * mu * matmul3(F - R, F.transpose(1, 2)) + (lam * (J - 1.0) * J)[:, None, None] * eye

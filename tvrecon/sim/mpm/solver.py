@@ -38,6 +38,7 @@ from tvrecon.sim.mpm.grid import (
 )
 from tvrecon.sim.mpm.materials import fixed_corotated_kirchhoff, lame_parameters, polar_decomposition
 from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
+from tvrecon.sim.mpm.small_matmul import matmul3
 from tvrecon.sim.mpm.state import CONTACT_MODES, MPMConfig, ParticleState, cfl_dt
 
 __all__ = ["MLSMPM"]
@@ -261,7 +262,7 @@ class MLSMPM:
         m = state.mass
         A = m[:, None, None] * C - ((4.0 * dt * inv_dx * inv_dx) * state.volume)[:, None, None] * tau
         # per node: w * (m v + A (x_i - x_p)) with x_i - x_p = (o - fx) dx  ->  w * (M [1, o]) with M (P, 4, 4)
-        mv0 = m[:, None] * v - dx * torch.matmul(A, fx[:, :, None])[:, :, 0]  # (P, 3)
+        mv0 = m[:, None] * v - dx * matmul3(A, fx[:, :, None])[:, :, 0]  # (P, 3)
         MT = torch.cat(
             [
                 torch.cat([m[None], torch.zeros_like(mv0.T)], 0)[None],  # (1, 4, P)
@@ -350,7 +351,7 @@ class MLSMPM:
             hv = torch.zeros(3, dtype=dtype, device=device) if hand_velocity is None else hand_velocity
             v_new = alpha[:, None] * v_pic + (1.0 - alpha[:, None]) * hv  # paper eq. 8 (eq:particle_v)
         x_new = x + dt * v_new  # paper eq. 10 (eq:particle_x)
-        F_new = F + dt * torch.matmul(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
+        F_new = F + dt * matmul3(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
 
     def last_particle_force(self, mass: Tensor) -> Tensor:
