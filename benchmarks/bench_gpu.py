@@ -19,6 +19,10 @@ machine; divide by ``--threads`` for wall time on idle cores). particle-steps/s 
 the steps that touch ran (a finished touch leaves the loop). Peak memory: ``torch.cuda.max_memory_allocated`` on
 CUDA, the process's max RSS on CPU (monotonic over the run).
 
+``setup s``: the host set-up of the batch alone (``EIPSimulator.place_batch``: each touch's frame, touch point and mesh
+collider, in ``setup_threads`` threads; ``--setup-threads 1,auto`` compares them), timed once after the calls; it is
+part of ``s/call``.
+
 Ops and syncs per step (``--count-batch``, default 4, eager only): the aten ops dispatched during one ``press_batch``
 call, counted with a ``TorchDispatchMode``, less those of the same call stopped after one step, per further step;
 also without the ops that only make views (no kernel on a GPU). A host sync is an op whose result the host must
@@ -131,6 +135,10 @@ def count_ops(
         MLSMPM.chunk_size = saved
 
 
+def _threads(value: str) -> int | None:
+    return None if value == "auto" else int(value)
+
+
 def _write(path: Path | None, results: dict) -> None:
     """Every figure so far to ``path`` (temp file, then rename): a run cut off by a time limit keeps its rows."""
     if path is None:
@@ -150,6 +158,11 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--count-batch", type=int, default=4, help="batch of the op/sync count (0: skip)")
     parser.add_argument("--out", type=Path, default=None, help="write every figure to this JSON file")
+    parser.add_argument(
+        "--setup-threads",
+        default="auto",
+        help="comma-separated EIPSimulator(setup_threads=...) values to compare, 'auto' = the default policy",
+    )
     parser.add_argument(
         "--profile", type=int, default=0, help="after the timings, profile one call of this batch (torch.profiler)"
     )
@@ -183,10 +196,12 @@ def main() -> None:
                 )
         print(
             f"  {'mode':9s} {'batch':>5s} {'first s':>8s} {'s/call':>8s} {'touches/s':>10s} {'p-steps/s':>10s} "
-            f"{'steps':>6s} {'peak MiB':>9s}"
+            f"{'steps':>6s} {'peak MiB':>9s} {'setup s':>8s} {'thr':>4s}"
         )
-        for mode in args.modes.split(","):
-            sim = EIPSimulator(sensor, press, device=device, compile=mode == "compiled")
+        for mode, threads in [(m, t) for m in args.modes.split(",") for t in args.setup_threads.split(",")]:
+            sim = EIPSimulator(
+                sensor, press, device=device, compile=mode == "compiled", setup_threads=_threads(threads)
+            )
             for b in batches:
                 if on_cuda:
                     torch.cuda.reset_peak_memory_stats(device)
@@ -201,10 +216,16 @@ def main() -> None:
                     torch.cuda.empty_cache()
                     break
                 sec = min(secs)
+                _sync(device)
+                t0 = _clock(device)
+                sim.place_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # the host set-up alone
+                setup = _clock(device) - t0
                 steps = [int(r.steps) for r in readings]
                 row = {
                     "scene": scene,
                     "mode": mode,
+                    "setup_threads": sim._setup_workers(b),
+                    "setup_s": setup,
                     "batch": b,
                     "first_s": first,
                     "s_per_call": sec,
@@ -217,7 +238,8 @@ def main() -> None:
                 _write(args.out, results)
                 print(
                     f"  {mode:9s} {b:5d} {first:8.2f} {sec:8.2f} {row['touches_per_s']:10.2f} "
-                    f"{row['particle_steps_per_s']:10.3g} {row['loop_steps']:6d} {row['peak_mib']:9.0f}"
+                    f"{row['particle_steps_per_s']:10.3g} {row['loop_steps']:6d} {row['peak_mib']:9.0f} "
+                    f"{setup:8.2f} {row['setup_threads']:4d}"
                 )
         if args.profile:
             profile_call(EIPSimulator(sensor, press, device=device), mesh, pos, dirs, strength, args.profile, device)
@@ -235,7 +257,7 @@ def profile_call(sim: EIPSimulator, mesh, pos, dirs, strength: dict, b: int, dev
         run_one(sim, mesh, pos, dirs, strength, b, device)
     key = "cuda_time_total" if device.type == "cuda" else "cpu_time_total"
     print(f"\n  profile of one eager call, batch {b}, by {key}:")
-    print(prof.key_averages().table(sort_by=key, row_limit=20))
+    print(prof.key_averages().table(sort_by=key, row_limit=30, max_name_column_width=60))
 
 
 if __name__ == "__main__":

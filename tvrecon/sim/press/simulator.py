@@ -28,6 +28,7 @@ import dataclasses
 import os
 import warnings
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -80,6 +81,9 @@ class EIPSimulator:
             call's ``compile=`` override still wins, as for every :class:`PressConfig` field). Readings equal the
             eager ones to float32 round-off and the data cache key does not change (see ``PressConfig.compile``).
             The environment variable ``TVRECON_COMPILE`` is no longer read (a warning says so when it is set).
+        setup_threads: threads building a call's touches (frame, touch point, mesh collider: host work, about 0.1-0.3
+            CPU-s a touch). None (default): the host's cores on a GPU, torch's thread count on the CPU. The
+            placements, and so the readings, do not depend on it.
     """
 
     def __init__(
@@ -88,6 +92,7 @@ class EIPSimulator:
         press: PressConfig | None = None,
         device: torch.device | str = "cpu",
         compile: bool | None = None,
+        setup_threads: int | None = None,
     ) -> None:
         self.sensor = sensor if sensor is not None else SensorConfig()
         self.cfg = press if press is not None else PressConfig()
@@ -100,6 +105,22 @@ class EIPSimulator:
             if compile != self.cfg.compile:
                 self.cfg = dataclasses.replace(self.cfg, compile=compile)
         _warn_stale_compile_env()
+        if setup_threads is not None and (
+            isinstance(setup_threads, bool) or not isinstance(setup_threads, int) or setup_threads < 1
+        ):
+            raise ValueError(f"EIPSimulator setup_threads must be a positive int or None, got {setup_threads!r}")
+        self.setup_threads = setup_threads
+
+    def _setup_workers(self, T: int) -> int:
+        """Threads placing the T touches of one call (each touch's collider is built on the CPU: scipy, numpy and
+        embree release the GIL for most of it). ``setup_threads`` when given; otherwise, on a GPU, the host's cores
+        (the device waits for the host's set-up: it is most of a large batch's time), and on the CPU torch's thread
+        budget (1 in ``generate``'s workers: one process per core)."""
+        if self.setup_threads is not None:
+            return max(1, min(T, self.setup_threads))
+        if self.device.type == "cpu":
+            return max(1, min(T, torch.get_num_threads()))
+        return max(1, min(T, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
     @property
     def compile(self) -> bool:
@@ -210,6 +231,17 @@ class EIPSimulator:
             T :class:`TactileReading`.
         """
         s, p = self._configs(overrides)
+        return self._run(self._place(meshes, positions, directions, s, p), s, p)
+
+    def place_batch(
+        self, meshes: Sequence[trimesh.Trimesh] | trimesh.Trimesh, positions, directions, **overrides
+    ) -> list[placement.Placement]:
+        """The set-up of :meth:`press_batch` alone: each touch's frame, touch point and collider (on the host, in
+        ``setup_threads`` threads), for timing it or inspecting a touch before pressing. Same arguments."""
+        s, p = self._configs(overrides)
+        return self._place(meshes, positions, directions, s, p)
+
+    def _place(self, meshes, positions, directions, s: SensorConfig, p: PressConfig) -> list[placement.Placement]:
         pos = (
             torch.as_tensor(np.asarray(positions, dtype=np.float32)) if not isinstance(positions, Tensor) else positions
         )
@@ -228,8 +260,12 @@ class EIPSimulator:
             meshes = [meshes] * T
         if len(meshes) != T:
             raise ValueError(f"expected {T} meshes (one per touch) or a single mesh, got {len(meshes)}")
-        touches = [self._setup(m, pos[t], dirs[t], s, p) for t, m in enumerate(meshes)]
-        return self._run(touches, s, p)
+        workers = self._setup_workers(T)
+        if workers == 1:
+            return [self._setup(m, pos[t], dirs[t], s, p) for t, m in enumerate(meshes)]
+        # independent touches: the same placements in the same order, built side by side
+        with ThreadPoolExecutor(workers, thread_name_prefix="eip-setup") as pool:
+            return list(pool.map(lambda t: self._setup(meshes[t], pos[t], dirs[t], s, p), range(T)))
 
     # ------------------------------------------------------------------ simulation loop
     def _run(self, touches: list[placement.Placement], s: SensorConfig, p: PressConfig) -> list[TactileReading]:
