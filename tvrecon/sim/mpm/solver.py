@@ -32,6 +32,7 @@ from tvrecon.sim.mpm.grid import (
     Transfer,
     block_layout,
     check_grid_speed,
+    node_major_scatter,
     share_node_force,
     shift_nodes,
     stencil_offsets,
@@ -64,6 +65,8 @@ class MLSMPM:
 
     #: particles per cache-sized block of the stencil passes (no-grad steps on the CPU); 0 = off
     chunk_size: int = 4096
+    #: P2G's scatter in the node-major layout (:func:`~tvrecon.sim.mpm.grid.node_major_scatter`): None = on CUDA only
+    node_major_p2g: bool | None = None
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu", compile: bool | None = None) -> None:
         if cfg.n_grid < 4:
@@ -275,6 +278,8 @@ class MLSMPM:
         # base node (P columns of 108), then the 27 stencil offsets are summed by shifting along the node axis, k then
         # j then i (9 shifts).
         S0, S1 = D[1] * D[2], D[2]
+        if chunk >= P and (device.type == "cuda" if self.node_major_p2g is None else self.node_major_p2g):
+            return node_major_scatter(MT, w, o_aug_t, lin, n_nodes, S0, S1)
         if chunk >= P:
             contrib = torch.matmul(o_aug_t, MT) * w  # (4, 27, P): (m, m v) per stencil node
             G = torch.zeros(108, n_nodes, dtype=dtype, device=device).index_add(1, lin, contrib.reshape(108, P))
