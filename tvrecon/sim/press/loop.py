@@ -151,9 +151,11 @@ class PressLoop:
             return [tc.reading for tc in touches]  # type: ignore[misc]
 
         for t in active:
-            touches[t].disp = torch.zeros(3, device=dev, dtype=torch.float32)
             touches[t].release_left = int(p.release_steps)
         B = len(active)
+        # each active touch's hand displacement so far (B, 3), one add per step for the batch; a touch's own row goes to
+        # its TouchRun.disp where the image or the record reads it
+        disp = torch.zeros(B, 3, device=dev, dtype=torch.float32)
         v0 = (speed_t * down).expand(B * P, 3)  # the pad starts moving rigidly with the hand: zero stress
         state = ParticleState.create(
             x_rest.repeat(B, 1),
@@ -189,6 +191,8 @@ class PressLoop:
                 state, collider=[touches[t].place.collider for t in active], hand_velocity=hv, alpha=alpha
             )
             xb = state.x.view(B, P, 3)
+            disp = disp + moved
+            contact_cells = xb[:, :HW] / dx  # (B, HW, 3): every touch's contact layer in cells, one launch
             force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
             lo_hi = torch.aminmax(xb[:, :HW].detach())  # NaN propagates: one reduction instead of isfinite + all
             # one host read per step: the positions' range (divergence) and the pad forces (the stop rules)
@@ -206,13 +210,13 @@ class PressLoop:
             done_now = []
             for b, t in enumerate(active):
                 tc = touches[t]
-                tc.disp = tc.disp + moved[b]
+                tc.disp = disp[b]  # a view: no launch
                 tc.travel += signs[b] * self.step_cells
                 if tc.pressing:
                     tc.felt(fz[b])
                     if p.record_every and tc.steps % int(p.record_every) == 0:
                         self._record(tc, xb[b])
-                    check = StopCheck(xb[b, :HW] / dx, x0_contact, lattice)
+                    check = StopCheck(contact_cells[b], x0_contact, lattice)
                     if sq_sums:
                         check.memo["rest_sq_sum"] = sq_sums[b]
                     if should_stop(self.rules, tc, check):
@@ -253,6 +257,7 @@ class PressLoop:
                 active = [active[b] for b in keep_b]
                 if active:
                     state = _select_blocks(state, keep_b, P)
+                    disp = disp[keep_b]
         bar.close()
         return [tc.reading for tc in touches]  # type: ignore[misc]
 
