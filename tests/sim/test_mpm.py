@@ -241,6 +241,37 @@ def test_exploding_state_raises_clear_error():
             state = solver.step(state)
 
 
+def test_deferred_grid_speed_check_raises_the_same_error():
+    """``defer_checks``: the step keeps its grid speed for the caller's host read; ``check_pending`` on that value
+    raises what the step raised itself (the press loop reads it with its one read a step)."""
+    x, _, vol = make_pad()
+    v0 = torch.zeros_like(x)
+    v0[:, 2] = -40.0  # 40 * dt cells a step at dt = 1 / 32: over the one-cell limit at once
+    state = ParticleState.create(x, v0, volume=vol)
+    with pytest.raises(FloatingPointError, match="grid speed") as direct:
+        MLSMPM(MPMConfig(n_grid=32, dt=1.0 / 32)).step(state)
+    solver = MLSMPM(MPMConfig(n_grid=32, dt=1.0 / 32))
+    solver.defer_checks = True
+    solver.step(state)  # no read, no raise
+    assert solver.pending_grid_speed is not None and solver.pending_grid_speed.dim() == 0
+    with pytest.raises(FloatingPointError, match="grid speed") as deferred:
+        solver.check_pending(float(solver.pending_grid_speed))
+    assert str(deferred.value) == str(direct.value)
+    solver.check_pending(0.0)  # a calm grid passes
+
+
+def test_press_loop_raises_the_grid_speed_error() -> None:
+    """The press loop defers the solver's check to its own read and still stops with the solver's error."""
+    import trimesh
+
+    from tvrecon.sim.press import EIPSimulator, PressConfig
+    from tvrecon.sim.sensor import SensorConfig
+
+    sim = EIPSimulator(SensorConfig(resolution=(6, 6), layers=3), PressConfig(n_grid=32, dt=0.05))
+    with pytest.raises(FloatingPointError, match="grid speed"):
+        sim.press(trimesh.creation.icosphere(subdivisions=2, radius=0.3), (0.0, 0.0, 0.3), (0.0, 0.0, -1.0))
+
+
 def test_bad_inputs():
     x, alpha, vol = make_pad()
     solver = MLSMPM(MPMConfig(n_grid=32))

@@ -93,6 +93,9 @@ class MLSMPM:
         # particles per compiled P2G call (compile=True): its (108, chunk) rows and their transposed copy stay in a
         # 1 MiB L2 at 2048 (paper touches ~2-8% faster than 4096 in one process; 1024 pays more calls); 0 = one call
         self.compiled_chunk_size = 2048
+        #: the caller reads the grid speed check's value with its own host read (:meth:`_speed_check`)
+        self.defer_checks = False
+        self.pending_grid_speed: Tensor | None = None
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
         self._scenes_of: tuple[Tensor, int, int, int | None] | None = None  # (batch, its version, B, block)
         self._kernels: CompiledKernels | None = compiled_kernels() if compile else None
@@ -231,6 +234,7 @@ class MLSMPM:
             self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(state.x.device), o_int, self._mesh_stack,
         )
         self.last_force, self._last_transfer = out.force, out.transfer
+        self._speed_check(out.vmax)
         if out.particle_force is not None:
             self._particle_contact_force = out.particle_force
         return out.state
@@ -298,7 +302,7 @@ class MLSMPM:
         """Grid velocity (paper eq. 7), damping and colliders; sets ``last_force``. Returns the (N, 3) velocities.
 
         Raises FloatingPointError when a node would move more than one cell per step (or is NaN)."""
-        dx, dt = self.dx, self.dt
+        dt = self.dt
         gm = grid[0]
         has_mass = gm > 0
         # paper eq. 7 (eq:grid_velocity), zero where m = 0
@@ -311,7 +315,7 @@ class MLSMPM:
         self.last_force = force
         S0, S1 = st.D[1] * st.D[2], st.D[2]
         self._last_transfer = Transfer(st.lin, st.w.detach(), gm.detach(), node_force.detach(), (S0, S1))
-        check_grid_speed(float(gv.detach().abs().amax()) if st.n_nodes else 0.0, dt, dx)
+        self._speed_check(gv.detach().abs().amax() if st.n_nodes else None)
         return gv
 
     def _g2p(
@@ -383,6 +387,20 @@ class MLSMPM:
             except CompileFailed:
                 self._kernels = None  # warned once; eager from now on
         return share_node_force(self._last_transfer, mass, o_int)
+
+    def _speed_check(self, vmax: Tensor | None) -> None:
+        """The grid speed check of a step (:func:`~tvrecon.sim.mpm.grid.check_grid_speed`) on ``vmax``, the 0-dim
+        largest node velocity component (None: no node). With ``defer_checks`` the value is kept in
+        ``pending_grid_speed`` for the caller's own host read (:meth:`check_pending`), a host sync fewer a step."""
+        if self.defer_checks:
+            self.pending_grid_speed = vmax if vmax is not None else torch.zeros((), device=self.device)
+            return
+        check_grid_speed(float(vmax) if vmax is not None else 0.0, self.dt, self.dx)
+
+    def check_pending(self, vmax: float) -> None:
+        """Run the deferred grid speed check of the last step on its value read by the caller
+        (``float(pending_grid_speed)``). Raises FloatingPointError as the step itself would have."""
+        check_grid_speed(vmax, self.dt, self.dx)
 
     def _chunk(self, P: int, device: torch.device) -> int:
         """Particles per chunk of the stencil passes: cache-sized blocks on the CPU without autograd, else all at once

@@ -167,6 +167,7 @@ class PressLoop:
         # the back layer is glued to the rigid, heavy mount (see SensorConfig.mount_mass)
         state = dataclasses.replace(state, mass=state.mass * mass_scale(s, device=dev).repeat(B))
         solver = MLSMPM(self.mcfg, device=dev, compile=self.compile)
+        solver.defer_checks = True  # its grid speed check rides on the step's one host read below
         x0_contact = self.x0_contact = x_rest[:HW] / dx  # (HW, 3) cells
         lattice = (H, W, float(s.spacing))
         # the threshold rule's bound of every touch, read with the step's one host read (StopCheck.memo)
@@ -196,11 +197,15 @@ class PressLoop:
             force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
             lo_hi = torch.aminmax(xb[:, :HW].detach())  # NaN propagates: one reduction instead of isfinite + all
             # one host read per step: the positions' range (divergence) and the pad forces (the stop rules)
-            parts = [torch.stack([lo_hi.min, lo_hi.max]), force[:, 2]]
+            # and the solver's grid speed check
+            assert solver.pending_grid_speed is not None
+            speed = solver.pending_grid_speed.to(lo_hi.min).reshape(())
+            parts = [torch.stack([lo_hi.min, lo_hi.max, speed]), force[:, 2]]
             if rest is not None:
-                parts.append(rest_sq_sums(xb[:, :HW].detach() / dx, rest))
+                parts.append(rest_sq_sums(contact_cells.detach(), rest))
             host = torch.cat([t.double() for t in parts]).tolist()
-            fz, sq_sums = host[2 : 2 + B], host[2 + B :]
+            solver.check_pending(host[2])
+            fz, sq_sums = host[3 : 3 + B], host[3 + B :]
             if not (math.isfinite(host[0]) and math.isfinite(host[1])):
                 raise FloatingPointError(
                     f"simulation diverged at step {n} (non-finite particle positions): lower PressConfig.dt or speed, "

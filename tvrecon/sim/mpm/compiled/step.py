@@ -31,7 +31,7 @@ from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
 from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
-from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, check_grid_speed, share_node_force
+from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, share_node_force
 from tvrecon.sim.mpm.materials import polar_decomposition
 from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
 from tvrecon.sim.mpm.state import MPMConfig, ParticleState
@@ -64,6 +64,7 @@ class FusedStep(NamedTuple):
     force: Tensor  # (B, 3) force the collider(s) exerted on each scene's particles (``MLSMPM.last_force``)
     transfer: Transfer  # the step's transfer, for ``MLSMPM.last_particle_force``
     particle_force: Tensor | None  # (P, 3) particle contact's force per particle (contact="particle"), else None
+    vmax: Tensor  # 0-dim: the fastest grid node's largest velocity component, for ``MLSMPM``'s speed check
 
 
 def _grid_update(
@@ -74,9 +75,10 @@ def _grid_update(
     st: Stencil,
     cfg: MPMConfig,
     dt: float,
-) -> tuple[Tensor, Tensor, Transfer]:
+) -> tuple[Tensor, Tensor, Transfer, Tensor]:
     """Node sums, grid velocity and colliders in one compiled kernel (``grid_collide``), as ``MLSMPM._grid_update``.
-    Returns the (N, 3) node velocities, the (B, 3) collider force and the step's transfer."""
+    Returns the (N, 3) node velocities, the (B, 3) collider force, the step's transfer and the 0-dim largest node
+    velocity component (the solver checks it, :func:`~tvrecon.sim.mpm.grid.check_grid_speed`)."""
     D = st.D
     dx = 1.0 / cfg.n_grid
     sdf, nrm = fields(colliders, st.lo, D, dx, G.dtype, G.device)
@@ -85,8 +87,7 @@ def _grid_update(
     gv, gm, node_force, force, vmax = kernels(
         "grid", G, S0, S1, sdf, nrm, len(colliders), dt, float(cfg.friction), damp
     )
-    check_grid_speed(float(vmax), dt, dx)
-    return gv, force, Transfer(st.lin, st.w, gm, node_force, (S0, S1))
+    return gv, force, Transfer(st.lin, st.w, gm, node_force, (S0, S1)), vmax
 
 
 def fused_step(
@@ -149,12 +150,12 @@ def fused_step(
             G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
     pforce = None
     if cfg.contact == "particle":  # opt-in: the grid without colliders, then the eager particle contact
-        gv, force, transfer, pforce = _particle_contact(
+        gv, force, transfer, pforce, vmax = _particle_contact(
             k, fields, state, G, st, colliders, hand_velocity, alpha, B, block, cfg, dt, stack
         )
         gv = gv.contiguous()
     else:
-        gv, force, transfer = _grid_update(k, fields, G, colliders, st, cfg, dt)
+        gv, force, transfer, vmax = _grid_update(k, fields, G, colliders, st, cfg, dt)
         gv = gv.contiguous()  # (N, 3)
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1  # (9,) node-axis offsets of the runs (i, j, k = 0..2)
     runs = gv.as_strided((gv.shape[0] - 2, 9), (3, 1))  # row n: nodes n, n+1, n+2 (a view; base + 2 S0 + 2 S1 < N - 2)
@@ -167,7 +168,7 @@ def fused_step(
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
     xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
-    return FusedStep(_cf_state(state, xn, vn, Cn, Fn), force, transfer, pforce)
+    return FusedStep(_cf_state(state, xn, vn, Cn, Fn), force, transfer, pforce, vmax)
 
 
 def _particle_contact(
@@ -184,19 +185,19 @@ def _particle_contact(
     cfg: MPMConfig,
     dt: float,
     stack: MeshStackCache | None = None,
-) -> tuple[Tensor, Tensor, Transfer, Tensor]:
+) -> tuple[Tensor, Tensor, Transfer, Tensor, Tensor]:
     """The grid side of a compiled step with ``MPMConfig(contact="particle")``, in :meth:`MLSMPM._step`'s order: the
     compiled grid update without colliders (paper eq. 7), then
     :func:`tvrecon.sim.mpm.particle_contact.particle_contact_grid` with the compiled contact passes. G: the P2G sums,
     (N, 4) or (N, 108) rows; st: the fused stencil (w (27, P), the eager ``lin``, ``D`` and ``lo``).
     Returns the corrected (N, 3) grid velocities for the compiled G2P, the (B, 3) contact force, the transfer and
-    the (P, 3) particle forces."""
-    gv, _, transfer = _grid_update(kernels, fields, G, [None] * B, st, cfg, dt)
+    the (P, 3) particle forces, and the largest node velocity component before the contact."""
+    gv, _, transfer, vmax = _grid_update(kernels, fields, G, [None] * B, st, cfg, dt)
     gv, force, pforce = particle_contact_grid(
         state, st, gv.contiguous(), transfer.node_mass, colliders, hand_velocity, alpha, B, block,
         dt, 1.0 / cfg.n_grid, cfg.friction, kernels, stack,
     )
-    return gv, force, transfer, pforce
+    return gv, force, transfer, pforce, vmax
 
 
 def particle_force(kernels: CompiledKernels, transfer: Transfer, mass: Tensor, o_int: Tensor) -> Tensor:
