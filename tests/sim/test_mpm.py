@@ -260,6 +260,29 @@ def test_deferred_grid_speed_check_raises_the_same_error():
     solver.check_pending(0.0)  # a calm grid passes
 
 
+def test_planned_block_layout_gives_the_same_steps():
+    """``defer_checks``: each step lays out the next one's blocks from its new positions and the caller hands the
+    read bounds back (the press loop's one read); the steps equal those that read their own bounds, bit for bit. A
+    state changed in place between steps, or another state, is laid out afresh."""
+    x, alpha, vol, col, hand = press_scene()
+    plain, planned = MLSMPM(MPMConfig(n_grid=32)), MLSMPM(MPMConfig(n_grid=32))
+    planned.defer_checks = True
+    a = b = ParticleState.create(x, None, volume=vol)
+    for i in range(20):
+        a = plain.step(a, collider=col, hand_velocity=hand, alpha=alpha)
+        b = planned.step(b, collider=col, hand_velocity=hand, alpha=alpha)
+        planned.check_pending(float(planned.pending_grid_speed))
+        assert planned.pending_bounds is not None and planned.pending_bounds.shape == (9,)
+        planned.set_next_bounds(planned.pending_bounds.tolist(), 1)
+        if i == 10:  # an in-place change between steps: the plan no longer applies
+            a.x[:5] += 0.5 / 32
+            b.x[:5] += 0.5 / 32
+        assert torch.equal(a.x, b.x) and torch.equal(a.F, b.F) and torch.equal(a.C, b.C), i
+    assert torch.equal(plain.last_force, planned.last_force)
+    with pytest.raises(FloatingPointError, match="not finite"):
+        planned.set_next_bounds([float("nan")] * 9, 1)
+
+
 def test_press_loop_raises_the_grid_speed_error() -> None:
     """The press loop defers the solver's check to its own read and still stops with the solver's error."""
     import trimesh

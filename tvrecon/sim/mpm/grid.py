@@ -22,9 +22,13 @@ __all__ = [
     "Stencil",
     "Transfer",
     "block_dims",
+    "block_index",
     "block_layout",
+    "bounds_row",
     "check_grid_speed",
+    "dims_from_bounds",
     "node_major_scatter",
+    "scene_bounds",
     "share_node_force",
     "shift_nodes",
     "shift_rows",
@@ -106,11 +110,33 @@ def node_major_scatter(MT: Tensor, w: Tensor, o_aug_t: Tensor, lin: Tensor, n_no
     return (U[..., 0] + shift_rows(U[..., 1], S0) + shift_rows(U[..., 2], 2 * S0)).T  # (4, N): mass, momentum
 
 
-def block_dims(lo_f: Tensor, hi_f: Tensor, B: int) -> list[int]:
-    """Block dims [3] (nodes per axis, the same for every scene) from the per-scene bounds of the base nodes, lo_f and
-    hi_f (B, 3) (float, whole numbers). Raises FloatingPointError on a non-finite or exploded state."""
+def scene_bounds(base_f: Tensor, batch: Tensor | None, B: int, block: int | None = None) -> tuple[Tensor, Tensor]:
+    """Per-scene lowest and highest base node, lo_f and hi_f (B, 3) float, of the base nodes ``base_f`` (P, 3).
+
+    ``block``: particles per scene when ``batch`` is the contiguous layout ``arange(B).repeat_interleave(block)``
+    (as :class:`tvrecon.sim.press.loop.PressLoop` builds it): plain reductions over a ``(B, block, 3)`` view instead
+    of a scatter (same values: min and max are exact). None: any ``batch``."""
+    if batch is None:
+        return base_f.amin(0, keepdim=True), base_f.amax(0, keepdim=True)
+    if block is not None:
+        lo_f, hi_f = torch.aminmax(base_f.reshape(B, block, 3), dim=1)
+        return lo_f, hi_f
+    idx = batch[:, None].expand(-1, 3)
+    lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
+    hi_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amax", include_self=False)
+    return lo_f, hi_f
+
+
+def bounds_row(lo_f: Tensor, hi_f: Tensor) -> Tensor:
+    """(9,) the block's nodes per axis (the largest scene's), the lowest and the highest base node over all scenes:
+    what the host needs to size the block grid (:func:`dims_from_bounds`)."""
     ext = hi_f - lo_f + 3.0  # nodes per axis: base .. base + 2
-    bounds = torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)]).tolist()
+    return torch.cat([ext.amax(0), lo_f.amin(0), hi_f.amax(0)])
+
+
+def dims_from_bounds(bounds: list[float], B: int) -> list[int]:
+    """Block dims [3] from :func:`bounds_row`'s nine values, read on the host. Raises FloatingPointError on a
+    non-finite or exploded state."""
     if not all(math.isfinite(b) for b in bounds):
         raise FloatingPointError(f"MPM state became NaN/inf (particle positions not finite): {FIX_HINT}")
     D = [int(d) for d in bounds[:3]]
@@ -119,28 +145,17 @@ def block_dims(lo_f: Tensor, hi_f: Tensor, B: int) -> list[int]:
     return D
 
 
-def block_layout(
-    base_f: Tensor, batch: Tensor | None, B: int, block: int | None = None
-) -> tuple[Tensor, Tensor, list[int]]:
-    """Local grid blocks of the particles' base nodes ``base_f`` (P, 3) (float, whole numbers).
+def block_dims(lo_f: Tensor, hi_f: Tensor, B: int) -> list[int]:
+    """Block dims [3] (nodes per axis, the same for every scene) from the per-scene bounds of the base nodes, lo_f and
+    hi_f (B, 3) (float, whole numbers): one host read. Raises FloatingPointError on a non-finite or exploded state."""
+    return dims_from_bounds(bounds_row(lo_f, hi_f).tolist(), B)
 
-    ``block``: particles per scene when ``batch`` is the contiguous layout ``arange(B).repeat_interleave(block)``
-    (as :class:`tvrecon.sim.press.loop.PressLoop` builds it): the per-scene bounds are then plain reductions over a
-    ``(B, block, 3)`` view instead of a scatter (same values: min and max are exact). None: any ``batch``.
 
-    Returns the per-scene origin lo (B, 3) int64, the linear node index of each particle's base node (P,) and the
-    block dims D [3]. Raises FloatingPointError on a non-finite or exploded state.
-    """
-    if batch is None:
-        lo_f = base_f.amin(0, keepdim=True)
-        hi_f = base_f.amax(0, keepdim=True)
-    elif block is not None:
-        lo_f, hi_f = torch.aminmax(base_f.reshape(B, block, 3), dim=1)
-    else:
-        idx = batch[:, None].expand(-1, 3)
-        lo_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amin", include_self=False)
-        hi_f = base_f.new_zeros(B, 3).scatter_reduce_(0, idx, base_f, "amax", include_self=False)
-    D = block_dims(lo_f, hi_f, B)
+def block_index(
+    base_f: Tensor, lo_f: Tensor, batch: Tensor | None, B: int, block: int | None, D: list[int]
+) -> tuple[Tensor, Tensor]:
+    """The per-scene origin lo (B, 3) int64 and the linear block-grid node index (P,) of each particle's base node,
+    for block dims ``D`` (:func:`block_layout`'s last part)."""
     nb = D[0] * D[1] * D[2]
     lo = lo_f.to(torch.int64)  # (B, 3)
     base = base_f.to(torch.int64)
@@ -154,6 +169,22 @@ def block_layout(
             lin = (lin.view(B, block) + torch.arange(B, device=lin.device)[:, None] * nb).view(-1)
         else:
             lin = lin + batch * nb
+    return lo, lin
+
+
+def block_layout(
+    base_f: Tensor, batch: Tensor | None, B: int, block: int | None = None
+) -> tuple[Tensor, Tensor, list[int]]:
+    """Local grid blocks of the particles' base nodes ``base_f`` (P, 3) (float, whole numbers).
+
+    ``block``: particles per scene of the contiguous layout (:func:`scene_bounds`), or None.
+
+    Returns the per-scene origin lo (B, 3) int64, the linear node index of each particle's base node (P,) and the
+    block dims D [3]. Raises FloatingPointError on a non-finite or exploded state.
+    """
+    lo_f, hi_f = scene_bounds(base_f, batch, B, block)
+    D = block_dims(lo_f, hi_f, B)
+    lo, lin = block_index(base_f, lo_f, batch, B, block, D)
     return lo, lin, D
 
 

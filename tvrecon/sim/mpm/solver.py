@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -30,9 +30,13 @@ from tvrecon.sim.mpm.compiled.step import fused_step, particle_force
 from tvrecon.sim.mpm.grid import (
     Stencil,
     Transfer,
+    block_index,
     block_layout,
+    bounds_row,
     check_grid_speed,
+    dims_from_bounds,
     node_major_scatter,
+    scene_bounds,
     share_node_force,
     shift_nodes,
     stencil_offsets,
@@ -43,6 +47,17 @@ from tvrecon.sim.mpm.small_matmul import matmul3
 from tvrecon.sim.mpm.state import CONTACT_MODES, MPMConfig, ParticleState, cfl_dt
 
 __all__ = ["MLSMPM"]
+
+
+@dataclass
+class _NextLayout:
+    """The next step's block layout, planned at the end of a step (``MLSMPM.defer_checks``)."""
+
+    x: Tensor  # the positions it was computed from (the next step must get this very tensor, unchanged)
+    version: int  # x._version then
+    base_f: Tensor  # (P, 3) base nodes
+    lo_f: Tensor  # (B, 3) per-scene lowest base node
+    D: list[int] | None  # block dims, once the caller has read them
 
 
 class MLSMPM:
@@ -96,6 +111,10 @@ class MLSMPM:
         #: the caller reads the grid speed check's value with its own host read (:meth:`_speed_check`)
         self.defer_checks = False
         self.pending_grid_speed: Tensor | None = None
+        # with defer_checks, the eager step also lays out the next step's blocks from its new positions: the caller
+        # reads ``pending_bounds`` (9,) with its own host read and gives the values back (:meth:`set_next_bounds`)
+        self.pending_bounds: Tensor | None = None
+        self._next_layout: _NextLayout | None = None
         self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
         self._scenes_of: tuple[Tensor, int, int, int | None] | None = None  # (batch, its version, B, block)
         self._kernels: CompiledKernels | None = compiled_kernels() if compile else None
@@ -215,7 +234,26 @@ class MLSMPM:
             )
         else:
             gv = self._grid_update(grid, colliders, st)
-        return self._g2p(state, st, gv, hand_velocity, alpha)
+        new = self._g2p(state, st, gv, hand_velocity, alpha)
+        if self.defer_checks:
+            self._plan_layout(new, B, block)
+        return new
+
+    def _plan_layout(self, state: ParticleState, B: int, block: int | None) -> None:
+        """The next step's base nodes and scene bounds from ``state`` (the step's result), so that its block dims come
+        with the caller's host read (``pending_bounds``) instead of a read of their own."""
+        if state.x.is_inference():  # no version counter to tell an in-place change: the next step reads its own
+            return
+        base_f = torch.floor(state.x.detach() * self.inv_dx - 0.5)  # the same values _stencil computes
+        lo_f, hi_f = scene_bounds(base_f, state.batch, B, block)
+        self._next_layout = _NextLayout(state.x, state.x._version, base_f, lo_f, None)
+        self.pending_bounds = bounds_row(lo_f, hi_f)
+
+    def set_next_bounds(self, bounds: list[float], B: int) -> None:
+        """The host's values of ``pending_bounds`` (9 floats): the next step on the same state uses them for its
+        block dims. Raises FloatingPointError on a non-finite or exploded state, as that step would have."""
+        if self._next_layout is not None:
+            self._next_layout.D = dims_from_bounds(bounds, B)
 
     def _fused_step(
         self,
@@ -244,8 +282,13 @@ class MLSMPM:
         x = state.x
         P = x.shape[0]
         Xg = x * self.inv_dx
-        base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
-        lo, lin, D = block_layout(base_f, state.batch, B, block)
+        plan, self._next_layout, self.pending_bounds = self._next_layout, None, None
+        if plan is not None and plan.D is not None and plan.x is x and plan.version == x._version:
+            base_f, D = plan.base_f, plan.D  # laid out by the last step, its dims read with the caller's read
+            lo, lin = block_index(base_f, plan.lo_f, state.batch, B, block, D)
+        else:
+            base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
+            lo, lin, D = block_layout(base_f, state.batch, B, block)
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
         # channel-first layouts (..., P) below: every big elementwise op runs over contiguous particle rows
         fxt = fx.T.contiguous()  # (3, P)

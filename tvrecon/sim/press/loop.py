@@ -200,17 +200,24 @@ class PressLoop:
             # and the solver's grid speed check
             assert solver.pending_grid_speed is not None
             speed = solver.pending_grid_speed.to(lo_hi.min).reshape(())
+            # and the next step's block bounds (the eager solver plans them; None from the compiled one)
+            bounds = solver.pending_bounds
             parts = [torch.stack([lo_hi.min, lo_hi.max, speed]), force[:, 2]]
+            if bounds is not None:
+                parts.append(bounds)
             if rest is not None:
                 parts.append(rest_sq_sums(contact_cells.detach(), rest))
             host = torch.cat([t.double() for t in parts]).tolist()
             solver.check_pending(host[2])
-            fz, sq_sums = host[3 : 3 + B], host[3 + B :]
+            fz, rest_host = host[3 : 3 + B], host[3 + B :]
+            next_bounds, sq_sums = (rest_host[:9], rest_host[9:]) if bounds is not None else (None, rest_host)
             if not (math.isfinite(host[0]) and math.isfinite(host[1])):
                 raise FloatingPointError(
                     f"simulation diverged at step {n} (non-finite particle positions): lower PressConfig.dt or speed, "
                     f"or raise damping; current dt={dt:.3g}, speed={_scalar(speed):.3g}, E={_scalar(s.E):.3g}"
                 )
+            if next_bounds is not None:
+                solver.set_next_bounds(next_bounds, B)
             particle_force = None  # (B, P, 3), computed on the first stop of this step
             done_now = []
             for b, t in enumerate(active):
