@@ -5,19 +5,14 @@ from pathlib import Path
 import pytest
 import torch
 from hydra.utils import instantiate
+from tiny_press import TINY_PRESS
 
 from tvrecon.data.datamodule import ClassificationDataModule, ReconstructionDataModule
 from tvrecon.data.presets import TABLE1, SplitSize, compose_preset, preset_names, split_sizes
 
 # shrink the tiny presets further so a batch generates in a few seconds
 FAST = [
-    "sensor.resolution=[8,8]",
-    "sensor.layers=3",
-    "press.n_grid=32",
-    "press.max_depth=1.5",
-    "press.gap=0.5",
-    "press.speed_fraction=0.2",
-    "touch.depth_fractions=[0.1]",
+    *TINY_PRESS,
     "tactile_size=12",
 ]
 RECON_FAST = FAST + ["train.num_samples=2", "val.num_samples=1", "test.num_samples=2", "max_touches=4"]

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+from tiny_press import TINY_PRESS
 
 from tvrecon.data.generate import main, pregenerate, shard_indices
 from tvrecon.data.generate_args import parse_shard
@@ -14,13 +15,7 @@ ARGS = [
     "val.num_objects=1",
     "test.num_objects=1",
     "touches_per_object=2",
-    "sensor.resolution=[8,8]",
-    "sensor.layers=3",
-    "press.n_grid=32",
-    "press.max_depth=1.5",
-    "press.gap=0.5",
-    "press.speed_fraction=0.2",
-    "touch.depth_fractions=[0.1]",
+    *TINY_PRESS,
 ]
 
 

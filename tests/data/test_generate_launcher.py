@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
+from tiny_press import TINY_PRESS
 
 from tvrecon.data.generate import main
 from tvrecon.data.generate_launcher import APP_CONFIG_DIR, hydra_arguments
@@ -25,13 +26,7 @@ ARGS = [  # 3 train items of 2 touches on a coarse grid (tests/data/test_generat
     "preset=cls_tiny",
     "train.num_objects=3",
     "touches_per_object=2",
-    "sensor.resolution=[8,8]",
-    "sensor.layers=3",
-    "press.n_grid=32",
-    "press.max_depth=1.5",
-    "press.gap=0.5",
-    "press.speed_fraction=0.2",
-    "touch.depth_fractions=[0.1]",
+    *TINY_PRESS,
     "splits=train",
     "workers=1",
 ]
