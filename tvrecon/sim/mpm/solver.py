@@ -267,6 +267,7 @@ class MLSMPM:
         """One no-grad step of the compiled backend (:func:`tvrecon.sim.mpm.compiled.step.fused_step`); stores its
         force, transfer and particle contact forces as :meth:`_step` does."""
         o_int = self._constants(state.x.dtype, state.x.device)[2]
+        self._next_layout, self.pending_bounds = None, None  # the compiled stencil reads its own bounds
         out = fused_step(
             self._kernels, self._fields, state, colliders, hand_velocity, alpha, B, block,
             self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(state.x.device), o_int, self._mesh_stack,

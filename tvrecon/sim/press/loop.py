@@ -199,10 +199,10 @@ class PressLoop:
             # one host read per step: the positions' range (divergence) and the pad forces (the stop rules)
             # and the solver's grid speed check
             assert solver.pending_grid_speed is not None
-            speed = solver.pending_grid_speed.to(lo_hi.min).reshape(())
+            vmax = solver.pending_grid_speed.to(lo_hi.min).reshape(())
             # and the next step's block bounds (the eager solver plans them; None from the compiled one)
             bounds = solver.pending_bounds
-            parts = [torch.stack([lo_hi.min, lo_hi.max, speed]), force[:, 2]]
+            parts = [torch.stack([lo_hi.min, lo_hi.max, vmax]), force[:, 2]]
             if bounds is not None:
                 parts.append(bounds)
             if rest is not None:
