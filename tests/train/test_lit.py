@@ -150,6 +150,24 @@ def test_recon_random_touch_count_in_range() -> None:
         ReconstructionModule(_net("tactile_only"), _optimizer, min_touches=0)
 
 
+def test_recon_touch_free_share() -> None:
+    """touch_free_share p: about p of the samples have no touch, the others 1..max_touches, uniform."""
+    torch.manual_seed(0)
+    model = ReconstructionModule(_net(), _optimizer, min_touches=0, max_touches=4, touch_free_share=0.4)
+    counts = model._touch_counts(20000)
+    free = (counts == 0).float().mean().item()
+    assert abs(free - 0.4) < 0.02  # not the 1 / 5 that uniform counts in [0, 4] would give
+    touched = counts[counts > 0]
+    assert set(touched.tolist()) == {1, 2, 3, 4}
+    assert torch.bincount(touched)[1:].float().div(len(touched)).sub(0.25).abs().max() < 0.02
+    none = ReconstructionModule(_net(), _optimizer, min_touches=2, max_touches=3, touch_free_share=0.0)
+    assert set(none._touch_counts(200).tolist()) == {2, 3}  # min_touches still bounds the touched samples
+    with pytest.raises(ValueError, match="touch_free_share must be in"):
+        ReconstructionModule(_net(), _optimizer, touch_free_share=1.0)
+    with pytest.raises(ValueError, match="tactile_only model needs at least one touch"):
+        ReconstructionModule(_net("tactile_only"), _optimizer, touch_free_share=0.2)
+
+
 @pytest.mark.filterwarnings("ignore:You are trying to `self.log")
 def test_recon_training_step_with_touch_free_samples() -> None:
     """min_touches=0: a batch mixing touch-free and touched samples trains; a batch drawn all touch-free runs the

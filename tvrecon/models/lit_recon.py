@@ -61,6 +61,9 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         move_from_stage: first deformation stage with the move term (Pixel2Mesh 1).
         min_touches, max_touches: range of the per-sample number of touches in training; ``min_touches=0`` trains on
             some touch-free samples (the model must then also answer with no touch; not for ``tactile_only``).
+        touch_free_share: probability that a training sample has no touch at all; the others draw their count in
+            [max(1, min_touches), max_touches]. None: counts uniform in [min_touches, max_touches] (with
+            ``min_touches=0`` a share of 1 / (max_touches + 1)). Not for ``tactile_only``.
         eval_touches: touch counts of the test modes (Table 3 columns).
         metric_points: points sampled on each surface for the chamfer metric (1,000 in the paper).
         fscore_thresholds: distance thresholds of the F-scores (Pixel2Mesh tau = 0.01 and 2 tau).
@@ -92,6 +95,7 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         move_from_stage: int = 1,
         min_touches: int = 1,
         max_touches: int = 10,
+        touch_free_share: float | None = None,
         eval_touches: Sequence[int] = (2, 5, 10),
         metric_points: int = 1000,
         fscore_thresholds: Sequence[float] = (0.01, 0.02),
@@ -126,6 +130,13 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         self.modality = MODALITY[net_mode]
         if self.modality == "tactile" and min_touches < 1:
             raise ValueError("the tactile_only model needs at least one touch per sample: set min_touches >= 1")
+        if touch_free_share is not None:
+            if not 0.0 <= float(touch_free_share) < 1.0:
+                raise ValueError(f"touch_free_share must be in [0, 1), got {touch_free_share}")
+            if self.modality == "tactile" and touch_free_share > 0:
+                raise ValueError(
+                    "the tactile_only model needs at least one touch per sample: set touch_free_share=null"
+                )
         self.criterion = MeshLoss(
             weights=dict(loss_weights or {}),
             stage_weights=stage_weights,
@@ -189,9 +200,14 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         return dict(self.criterion(out, points, normals))
 
     def _touch_counts(self, batch_size: int) -> Tensor:
-        """(B,) int64 touch counts drawn uniformly in [min_touches, max_touches], one per sample."""
+        """(B,) int64 touch counts, one per sample: uniform in [min_touches, max_touches], or, with a
+        ``touch_free_share`` p, 0 with probability p and uniform in [max(1, min_touches), max_touches] otherwise."""
         lo, hi = int(self.hparams.min_touches), int(self.hparams.max_touches)
-        return torch.randint(lo, hi + 1, (batch_size,))
+        share = self.hparams.get("touch_free_share")
+        if share is None:
+            return torch.randint(lo, hi + 1, (batch_size,))
+        counts = torch.randint(max(1, lo), hi + 1, (batch_size,))
+        return torch.where(torch.rand(batch_size) < float(share), torch.zeros_like(counts), counts)
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
