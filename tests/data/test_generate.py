@@ -148,12 +148,13 @@ def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, 
     base = [*ARGS, f"cache_dir={tmp_path}", "splits=train", "workers=1"]
     generate.main([*base, "compile=true"])
     generate.main([*base, "compile=False"])
-    generate.main(base)
+    generate.main(base)  # the presets' auto (pregenerate settles it per process: tests/sim/test_compile_policy.py)
     generate.main([*base, "press.compile=true"])  # the long spelling, as train.py's data.press.compile=true
-    assert [s[:2] for s in seen] == [(True, True), (False, False), (False, False), (True, True)]
+    generate.main([*base, "compile=AUTO"])
+    assert [s[:2] for s in seen] == [(True, True), (False, False), ("auto", "auto"), (True, True), ("auto", "auto")]
     assert len({s[2] for s in seen}) == 1  # one cache key whether compiled or not
     assert "TVRECON_COMPILE" not in os.environ
-    with pytest.raises(ValueError, match="compile must be true or false, got 'fast'"):
+    with pytest.raises(ValueError, match="compile must be true or false or auto, got 'fast'"):
         generate.main([*ARGS, "compile=fast"])
     with pytest.raises(ValueError, match=r"compile=\.\.\. or press.compile=\.\.\., not both"):
         generate.main([*ARGS, "compile=true", "press.compile=false"])

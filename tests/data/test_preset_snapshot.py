@@ -105,8 +105,8 @@ def test_preset_list_is_pinned():
 
 #: Keys added to every preset on purpose since the fixture was written (rewritten for the paper's touches, issue 24),
 #: with their value: ``press.compile`` (base/common.yaml, issues 25/27: the fused kernels as a config field, outside
-#: the cache key, so the pinned keys hold).
-ADDED: dict[tuple[str, str], Any] = {("press", "compile"): False}
+#: the cache key, so the pinned keys hold; ``auto`` since issue 27 made the fast path the default).
+ADDED: dict[tuple[str, str], Any] = {("press", "compile"): "auto"}
 
 
 def test_presets_resolve_to_pinned_values(project_root):

@@ -56,28 +56,29 @@ def solver_compiled(monkeypatch: pytest.MonkeyPatch):
 
 
 def test_compile_is_a_press_field_outside_the_cache_key() -> None:
-    assert PressConfig().compile is False
+    assert PressConfig().compile == "auto"  # the job decides (tests/sim/test_compile_policy.py)
     on = dataclasses.replace(PRESS, compile=True)
     assert cache_key({"press": on, "sensor": SENSOR}) == cache_key({"press": PRESS, "sensor": SENSOR})
     assert cache_key({"press": PressConfig()}) == cache_key({"press": PressConfig(compile=True)})
+    assert cache_key({"press": PressConfig(compile=False)}) == cache_key({"press": PressConfig(compile=True)})
     assert cache_key({"press": PressConfig(gap=0.5)}) != cache_key({"press": PressConfig()})  # other fields count
-    with pytest.raises(TypeError, match="PressConfig.compile must be a bool"):
+    with pytest.raises(TypeError, match="PressConfig.compile must be true, false or 'auto'"):
         PressConfig(compile="yes")  # type: ignore[arg-type]
 
 
 def test_press_config_compile_gives_a_compiled_solver(solver_compiled) -> None:
     assert solver_compiled(EIPSimulator(SENSOR, dataclasses.replace(PRESS, compile=True)))
-    assert not solver_compiled(EIPSimulator(SENSOR, PRESS))  # the default: eager
+    assert not solver_compiled(EIPSimulator(SENSOR, PRESS))  # the default, auto, with one touch: eager
 
 
 def test_explicit_compile_and_call_overrides(solver_compiled) -> None:
     on = dataclasses.replace(PRESS, compile=True)
     assert not solver_compiled(EIPSimulator(SENSOR, on, compile=False))  # an explicit bool wins over the config
     assert solver_compiled(EIPSimulator(SENSOR, PRESS, compile=True))
-    assert EIPSimulator(SENSOR, PRESS, compile=True).cfg.compile and PRESS.compile is False  # the caller's is kept
+    assert EIPSimulator(SENSOR, PRESS, compile=True).cfg.compile is True and PRESS.compile == "auto"  # caller's kept
     assert solver_compiled(EIPSimulator(SENSOR, PRESS), compile=True)  # a call's override, as any PressConfig field
     assert not solver_compiled(EIPSimulator(SENSOR, on), compile=False)
-    with pytest.raises(TypeError, match="compile must be a bool or None"):
+    with pytest.raises(TypeError, match="EIPSimulator compile must be true, false or 'auto'"):
         EIPSimulator(SENSOR, PRESS, compile="1")  # type: ignore[arg-type]
 
 
@@ -85,7 +86,7 @@ def test_the_old_environment_variable_is_ignored_with_a_warning(monkeypatch: pyt
     monkeypatch.setenv("TVRECON_COMPILE", "1")
     with pytest.warns(FutureWarning, match=r"TVRECON_COMPILE='1' is no longer read: .*press\.compile=true"):
         sim = EIPSimulator(SENSOR, PRESS)
-    assert not sim.compile and not solver_compiled(sim)
+    assert sim.compile == "auto" and not solver_compiled(sim)
     assert not MLSMPM(MPMConfig(n_grid=32)).compiled  # the solver does not read it either
     monkeypatch.delenv("TVRECON_COMPILE")
     with warnings.catch_warnings():

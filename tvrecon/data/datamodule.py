@@ -139,7 +139,11 @@ class _GeneratedDataModule(LightningDataModule):
         for name in names:
             if self.splits.get(name) is not None and name not in self.datasets:
                 self.datasets[name] = self.make_dataset(name)
-                announce_uncached(name, self.datasets[name])  # the first epoch on an empty cache says so
+                missing = announce_uncached(name, self.datasets[name])  # the first epoch on an empty cache says so
+                plan = getattr(self.datasets[name], "plan_compile", None)
+                if missing and plan is not None:  # compile="auto": the touches each loading process simulates
+                    per_item = int(getattr(self.datasets[name], "touches_per_item", 1))
+                    plan(missing * per_item // max(1, self.num_workers))
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
         if name not in self.datasets:

@@ -6,15 +6,16 @@ Usage::
     python -m tvrecon.data.generate preset=cls_small splits=train workers=2
     python -m tvrecon.data.generate preset=paper --shard 3/8           # this process does items i % 8 == 3
     python -m tvrecon.data.generate preset=tiny train.num_samples=4 sensor.resolution=[8,8] cache_dir=/tmp/c
-    python -m tvrecon.data.generate preset=paper workers=2 compile=true  # fused kernels: ~2.6x on the paper preset
+    python -m tvrecon.data.generate preset=paper workers=2 compile=false  # force the eager step (default: auto)
 
 Arguments are ``key=value``: ``preset`` (a YAML name in ``configs/data``, default ``small``), ``splits``
 (comma-separated, default all configured), ``workers`` (processes, default all cores), ``shard=i/n`` (or
-``--shard i/n``), ``compile`` (``true``/``false``: the presses' opt-in fused kernels; short for the data-config
-override ``press.compile=true``/``false`` of ``PressConfig.compile``, which the worker processes receive with the
-config; readings equal the eager ones to float32 round-off and the cache key does not change; each worker compiles
-once per batch size, ~50 s, so it pays on large presets only); everything else is a Hydra override of the data config
-(``cache_dir=...``, ``train.num_samples=8``).
+``--shard i/n``), ``compile`` (``true``/``false``/``auto``: the presses' fused kernels; short for the data-config
+override ``press.compile=...`` of ``PressConfig.compile``, which the worker processes receive with the config;
+readings equal the eager ones to float32 round-off and the cache key does not change. The presets' ``auto`` compiles
+in each worker that presses enough touches to pay the compile back: 500 on a CPU with a C++ compiler, 100 once the
+compile cache ``<cache_dir>/torch_compile`` is warm, never on CUDA; the log says what it chose); everything else is a
+Hydra override of the data config (``cache_dir=...``, ``train.num_samples=8``).
 Under a launcher that sets ``RANK``/``LOCAL_RANK`` and ``WORLD_SIZE`` (Lightning, torchrun, a cluster array job),
 each rank takes its own share of the shard, so a cluster generates in parallel.
 
@@ -62,9 +63,10 @@ from tvrecon.data.cache_housekeeping import remove_stale_tmp
 from tvrecon.data.generate_args import OPTION_KEYS, parse_shard
 from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.touch_report import contact_report
+from tvrecon.sim.mpm.compiled.policy import AUTO
 from tvrecon.utils.cli_errors import RESUME_HINT
 
-__all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "main"]
+__all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "touches_per_process", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +113,11 @@ def shard_indices(
     rank, world = rank_world if rank_world is not None else _rank_world()
     part, parts = i * world + rank, n * world
     return list(range(part, int(num_items), parts))
+
+
+def touches_per_process(items: int, processes: int, per_item: int) -> int:
+    """The most touches one of ``processes`` presses when they share ``items`` items of ``per_item`` touches."""
+    return -(-int(items) // max(1, int(processes))) * int(per_item)
 
 
 # ---------------------------------------------------------------------- worker side
@@ -236,6 +243,9 @@ def pregenerate(
     if todo:  # a read-only cache is reported before any worker starts simulating
         dataset.cache.check_writable(cache_key(dataset.spec(todo[0])))
     per_item = dataset.touches_per_item
+    procs = 1 if workers == 1 or len(todo) <= 1 else min(workers, len(todo))
+    if todo:  # compile="auto": each process's share of the touches decides (before the dataset goes to the workers)
+        dataset.plan_compile(touches_per_process(len(todo), procs, per_item))
     bar = tqdm(
         total=len(todo) * per_item,
         desc=f"generate {desc}".strip(),
@@ -245,13 +255,13 @@ def pregenerate(
     )
     start = time.perf_counter()
     try:
-        if workers == 1 or len(todo) <= 1:
+        if procs == 1:
             for i in todo:
                 dataset.raw(i)
                 stats.generated += 1
                 bar.update(per_item)
         else:
-            for _ in _pool_generate(dataset, todo, min(workers, len(todo)), desc):
+            for _ in _pool_generate(dataset, todo, procs, desc):
                 stats.generated += 1
                 bar.update(per_item)
     finally:
@@ -313,24 +323,26 @@ def main(argv: Sequence[str] | None = None) -> list[GenerateStats]:
 
 
 def _compile_override(opts: dict[str, str], overrides: Sequence[str]) -> list[str]:
-    """``compile=true|false`` as the data-config override ``press.compile=...`` ([] without ``compile=``): the
+    """``compile=true|false|auto`` as the data-config override ``press.compile=...`` ([] without ``compile=``): the
     datasets, and so the worker processes they are pickled into, carry it in their ``PressConfig``."""
     if "compile" not in opts:
         return []
-    flag = _flag(opts["compile"], "compile")
+    value = opts["compile"].strip().lower()
+    flag = AUTO if value == AUTO else str(_flag(opts["compile"], "compile", also=AUTO)).lower()
     if any(o.split("=", 1)[0].lstrip("+~") == COMPILE_KEY for o in overrides):
         raise ValueError(f"give compile=... or {COMPILE_KEY}=..., not both (compile=true is {COMPILE_KEY}=true)")
-    return [f"{COMPILE_KEY}={str(flag).lower()}"]
+    return [f"{COMPILE_KEY}={flag}"]
 
 
-def _flag(value: str, name: str) -> bool:
-    """``true``/``false`` (also 1/0, yes/no, any case) of a ``key=value`` argument; ValueError naming ``name``."""
+def _flag(value: str, name: str, also: str | None = None) -> bool:
+    """``true``/``false`` (also 1/0, yes/no, any case) of a ``key=value`` argument; ValueError naming ``name`` (and
+    the other accepted word ``also`` in its message)."""
     v = value.strip().lower()
     if v in ("true", "1", "yes"):
         return True
     if v in ("false", "0", "no"):
         return False
-    raise ValueError(f"{name} must be true or false, got {value!r}")
+    raise ValueError(f"{name} must be true or false{f' or {also}' if also else ''}, got {value!r}")
 
 
 def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:

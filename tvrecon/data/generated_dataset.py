@@ -13,7 +13,9 @@ What is cached (one ``.npz`` per item, see :mod:`tvrecon.data.cache`) is the *ra
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,7 @@ from tvrecon.data.touches import (
     sample_touches,
     simulate_touches,
 )
+from tvrecon.sim.mpm.compiled.policy import resolve_compile, use_compile_cache
 from tvrecon.sim.mpm.state import MPMConfig, cfl_dt
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.simulator import EIPSimulator
@@ -41,6 +44,8 @@ from tvrecon.sim.sensor.pad import SensorConfig
 from tvrecon.utils.config_utils import coerce_config
 
 __all__ = ["GeneratedDataset"]
+
+log = logging.getLogger(__name__)
 
 
 def _pair(size: int | Sequence[int], name: str) -> tuple[int, int]:
@@ -165,6 +170,30 @@ class GeneratedDataset(Dataset):
             kwargs = {} if self.sim_device is None else {"device": self.sim_device}
             self._simulator = EIPSimulator(sensor=self.sensor, press=self.press, **kwargs)
         return self._simulator
+
+    def plan_compile(self, touches: int) -> bool:
+        """Settle ``press.compile`` for a process about to press ``touches`` of this dataset's touches.
+
+        ``"auto"`` becomes True or False (:func:`~tvrecon.sim.mpm.compiled.policy.resolve_compile`: a CPU with a C++
+        compiler and enough touches to pay back the compile); True or False stay. When compiling, the compile cache
+        goes under the data cache (``<cache_dir>/torch_compile``) unless ``$TORCHINDUCTOR_CACHE_DIR`` is set, so the
+        next process compiles from it. Call it before the dataset is pickled into worker processes.
+
+        Returns:
+            Whether this dataset's presses now run the compiled kernels.
+        """
+        root = self.cache.root if self.cache.enabled else None
+        device = self.sim_device if self.sim_device is not None else "cpu"
+        on, why = resolve_compile(self.press.compile, int(touches), device, root)
+        if on:
+            use_compile_cache(root)
+        if on != self.press.compile:
+            self.press = dataclasses.replace(self.press, compile=on)
+            self._simulator = None
+        if why != "as configured":
+            kernels = "compiled" if on else "eager"
+            log.info("press.compile=auto for split %r: %s -> %s kernels", self.split, why, kernels)
+        return on
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)

@@ -26,6 +26,7 @@ from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.bodies.grid_contact import collide_grid
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels, CompileFailed, compiled_kernels
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
+from tvrecon.sim.mpm.compiled.policy import mark_compile_cache_warm
 from tvrecon.sim.mpm.compiled.step import fused_step, particle_force
 from tvrecon.sim.mpm.grid import (
     Stencil,
@@ -273,6 +274,7 @@ class MLSMPM:
             self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(state.x.device), o_int, self._mesh_stack,
         )
         self.last_force, self._last_transfer = out.force, out.transfer
+        mark_compile_cache_warm()  # once per process: compile="auto" takes the warm threshold from now on
         self._speed_check(out.vmax)
         if out.particle_force is not None:
             self._particle_contact_force = out.particle_force

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from tvrecon.sim.mpm.compiled.policy import AUTO, check_compile_setting
 from tvrecon.sim.mpm.state import CONTACT_MODES
 from tvrecon.sim.sensor.pad import _scalar
 from tvrecon.utils.config_utils import NOT_IN_KEY, OMIT_IF_DEFAULT, check_number, check_whole
@@ -69,10 +70,11 @@ class PressConfig:
         compile: run the solver's no-grad steps with its fused ``torch.compile`` kernels (``MLSMPM(compile=True)``,
             :mod:`tvrecon.sim.mpm.compiled`). How a touch is computed, not what it is: the readings equal the eager
             ones to float32 round-off (1e-4 grid cells tested), so it never enters the data cache key
-            (``config_utils.NOT_IN_KEY``) and a cache filled either way serves both. Off by default: each solver
-            compiles once per batch size (~40-50 s on a CPU), which pays back only over many steps per process (large
-            presets, long ``generate`` runs; ``generate ... compile=true`` sets it), not on the small presets or in
-            tests. Steps that need autograd always run eager.
+            (``config_utils.NOT_IN_KEY``) and a cache filled either way serves both. True, False or ``"auto"``
+            (default): the job decides (:func:`tvrecon.sim.mpm.compiled.policy.resolve_compile`): ``generate`` and
+            the datamodules compile on a CPU with a C++ compiler when a process presses enough touches to pay back its
+            compile (500, or 100 with a warm compile cache); a single press, CUDA and small jobs stay eager. Steps that
+            need autograd always run eager.
 
     The earlier default press (grid-node collider, threshold in the press's own cells) is
     ``PressConfig(contact="grid", threshold_grid=None)`` (CLI: ``--contact grid --threshold-grid 0``).
@@ -100,7 +102,7 @@ class PressConfig:
     contact: str = field(default="particle", metadata=OMIT_IF_DEFAULT)
     threshold_grid: int | None = field(default=128, metadata=OMIT_IF_DEFAULT)
     terminal: str = field(default="chamfer", metadata=OMIT_IF_DEFAULT)
-    compile: bool = field(default=False, metadata=NOT_IN_KEY)
+    compile: bool | str = field(default=AUTO, metadata=NOT_IN_KEY)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -141,7 +143,6 @@ class PressConfig:
         tg = self.threshold_grid
         if tg is not None and not (isinstance(tg, int) and not isinstance(tg, bool) and tg > 0):
             raise ValueError(f"PressConfig.threshold_grid must be a positive int or None, got {self.threshold_grid!r}")
-        if not isinstance(self.compile, bool):
-            raise TypeError(f"PressConfig.compile must be a bool, got {type(self.compile).__name__} ({self.compile!r})")
+        check_compile_setting(self.compile, "PressConfig.compile")
         if self.terminal not in TERMINAL_MEASURES:
             raise ValueError(f"PressConfig.terminal must be one of {TERMINAL_MEASURES}, got {self.terminal!r}")

@@ -23,6 +23,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from tvrecon.sim.mpm.compiled.policy import resolve_compile
 from tvrecon.sim.mpm.solver import MLSMPM
 from tvrecon.sim.mpm.state import MPMConfig, ParticleState
 from tvrecon.sim.press.config import PressConfig
@@ -111,11 +112,12 @@ class PressLoop:
         mcfg: MPMConfig,
         speed,
         device: torch.device,
-        compile: bool | None = None,
+        compile: bool | str | None = None,
     ) -> None:
         self.s, self.p, self.mcfg, self.speed, self.device = s, p, mcfg, speed, device
-        # MLSMPM(compile=...): fused no-grad steps, equal to round-off; None -> the press config's (PressConfig.compile)
-        self.compile = bool(p.compile) if compile is None else bool(compile)
+        # MLSMPM(compile=...): fused no-grad steps, equal to round-off; None -> PressConfig.compile; "auto" is
+        # resolved in run() with this call's touches (a lone press: eager; jobs resolve it for their process)
+        self.compile = p.compile if compile is None else compile
         self.H, self.W = s.resolution
         self.HW, self.dx = self.H * self.W, 1.0 / int(p.n_grid)
         self.dt = float(mcfg.dt)
@@ -166,7 +168,7 @@ class PressLoop:
         )
         # the back layer is glued to the rigid, heavy mount (see SensorConfig.mount_mass)
         state = dataclasses.replace(state, mass=state.mass * mass_scale(s, device=dev).repeat(B))
-        solver = MLSMPM(self.mcfg, device=dev, compile=self.compile)
+        solver = MLSMPM(self.mcfg, device=dev, compile=resolve_compile(self.compile, len(places), dev)[0])
         solver.defer_checks = True  # its grid speed check rides on the step's one host read below
         x0_contact = self.x0_contact = x_rest[:HW] / dx  # (HW, 3) cells
         lattice = (H, W, float(s.spacing))

@@ -35,6 +35,7 @@ import torch
 import trimesh
 from torch import Tensor
 
+from tvrecon.sim.mpm.compiled.policy import check_compile_setting
 from tvrecon.sim.mpm.materials import p_wave_speed
 from tvrecon.sim.mpm.state import MPMConfig, cfl_dt
 from tvrecon.sim.press import placement
@@ -77,8 +78,10 @@ class EIPSimulator:
         press: press protocol (default :class:`PressConfig`).
         device: torch device of the simulation.
         compile: run the solver's no-grad steps with the fused ``torch.compile`` kernels (``MLSMPM(compile=True)``):
-            None (default) -> ``press.compile``; a bool replaces ``press.compile`` in this simulator's config (a
-            call's ``compile=`` override still wins, as for every :class:`PressConfig` field). Readings equal the
+            None (default) -> ``press.compile``; True, False or ``"auto"`` replaces ``press.compile`` in this
+            simulator's config (a call's ``compile=`` override still wins, as for every :class:`PressConfig` field).
+            ``"auto"`` (``PressConfig``'s default) compiles a call of many touches on a CPU with a C++ compiler
+            (:func:`tvrecon.sim.mpm.compiled.policy.resolve_compile`); a few touches stay eager. Readings equal the
             eager ones to float32 round-off and the data cache key does not change (see ``PressConfig.compile``).
             The environment variable ``TVRECON_COMPILE`` is no longer read (a warning says so when it is set).
         setup_threads: threads building a call's touches (frame, touch point, mesh collider: host work, about 0.1-0.3
@@ -91,7 +94,7 @@ class EIPSimulator:
         sensor: SensorConfig | None = None,
         press: PressConfig | None = None,
         device: torch.device | str = "cpu",
-        compile: bool | None = None,
+        compile: bool | str | None = None,
         setup_threads: int | None = None,
     ) -> None:
         self.sensor = sensor if sensor is not None else SensorConfig()
@@ -100,8 +103,7 @@ class EIPSimulator:
         check_instance(self.cfg, PressConfig, "EIPSimulator press")
         self.device = torch.device(device)
         if compile is not None:
-            if not isinstance(compile, bool):
-                raise TypeError(f"EIPSimulator compile must be a bool or None, got {type(compile).__name__}")
+            check_compile_setting(compile, "EIPSimulator compile")
             if compile != self.cfg.compile:
                 self.cfg = dataclasses.replace(self.cfg, compile=compile)
         _warn_stale_compile_env()
@@ -123,9 +125,10 @@ class EIPSimulator:
         return max(1, min(T, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
     @property
-    def compile(self) -> bool:
-        """Whether presses run the solver's fused kernels by default (``cfg.compile``; a call may override it)."""
-        return bool(self.cfg.compile)
+    def compile(self) -> bool | str:
+        """Whether presses run the solver's fused kernels by default: ``cfg.compile``, True, False or ``"auto"`` (a
+        call resolves it with its own touches: eager; a call may override it)."""
+        return self.cfg.compile
 
     # ------------------------------------------------------------------ configuration
     def _configs(self, overrides: dict) -> tuple[SensorConfig, PressConfig]:

@@ -1,0 +1,181 @@
+"""When presses run the compiled kernels: ``compile="auto"`` (the default of ``PressConfig.compile``) resolved per
+process from the work it will do, and the persistent compile cache that makes a second process's compile cheap.
+
+A compile costs the process a fixed time before its first fused step, and each touch after it is cheaper than an
+eager one; so it pays back only over enough touches in one process. Measured on the ``small`` preset's touches (a
+31 x 31 x 5 pad on the 64 grid; one thread, the other core busy with a training run;
+``benchmarks/bench_compile_auto.py``):
+eager 0.55 CPU-s per touch, compiled 0.32; the first compile 131 s with an empty cache and 14 s with a warm one. The
+break-even is then about 590 touches cold and 60 warm; the thresholds below round those. The paper pads save more
+per touch (1.5 CPU-s), so they pay back sooner.
+
+- **CPU with a C++ compiler:** ``"auto"`` compiles when the process presses at least :data:`AUTO_MIN_TOUCHES_COLD`
+  touches, or :data:`AUTO_MIN_TOUCHES_WARM` when this version of the kernels is already in the compile cache (a
+  marker file written after a process's first compiled step).
+- **CUDA:** eager. The compiled step was measured no faster than the eager one on an H100 (2.92 vs 3.65 touches/s at
+  batch 64, ``benchmarks/README.md``), and the CUDA graphs it would need are not built yet.
+- A job that does not know its size (a single ``EIPSimulator.press``) resolves with the touches of that call: eager.
+
+The compile cache: :func:`use_compile_cache` points inductor's ``TORCHINDUCTOR_CACHE_DIR`` at ``torch_compile/`` of
+the data cache (unless the user set it) in a process about to compile; spawned worker processes inherit it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import shutil
+from functools import cache
+from pathlib import Path
+
+import torch
+
+__all__ = [
+    "AUTO",
+    "AUTO_MIN_TOUCHES_COLD",
+    "AUTO_MIN_TOUCHES_WARM",
+    "CACHE_ENV",
+    "CACHE_SUBDIR",
+    "check_compile_setting",
+    "compile_cache_dir",
+    "compile_cache_warm",
+    "cpp_compiler",
+    "mark_compile_cache_warm",
+    "resolve_compile",
+    "use_compile_cache",
+]
+
+log = logging.getLogger(__name__)
+
+#: the setting that lets the job decide (``PressConfig.compile``'s default)
+AUTO = "auto"
+#: touches per process from which ``"auto"`` compiles with an empty compile cache (break-even ~590 measured)
+AUTO_MIN_TOUCHES_COLD = 500
+#: the same with this version of the kernels already in the compile cache (break-even ~60 measured)
+AUTO_MIN_TOUCHES_WARM = 100
+#: inductor's cache folder variable (read by torch at each compile, so setting it before the first one is enough)
+CACHE_ENV = "TORCHINDUCTOR_CACHE_DIR"
+#: the compile cache's folder inside the data cache
+CACHE_SUBDIR = "torch_compile"
+
+_SOURCES = ("backend.py", "grid.py", "kernels.py", "scatter.py", "step.py", "../particle_contact.py")
+
+
+def check_compile_setting(value: object, name: str) -> None:
+    """TypeError naming ``name`` unless ``value`` is True, False or ``"auto"``."""
+    if not (isinstance(value, bool) or value == AUTO):
+        raise TypeError(f"{name} must be true, false or {AUTO!r}, got {type(value).__name__} ({value!r})")
+
+
+@cache
+def cpp_compiler() -> str | None:
+    """Path of the C++ compiler inductor's CPU kernels need (``$CXX``, else ``c++``, ``g++``, ``clang++``), or None."""
+    for name in (os.environ.get("CXX"), "c++", "g++", "clang++"):
+        if name and (found := shutil.which(name)):
+            return found
+    return None
+
+
+def _user_cache_dir() -> str | None:
+    """``$TORCHINDUCTOR_CACHE_DIR`` unless it is torch's own default, which importing ``torch._dynamo`` writes there
+    (Lightning imports it), so that the variable alone does not tell a user's choice."""
+    value = os.environ.get(CACHE_ENV)
+    if value is None:
+        return None
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir  # loaded already when torch set it
+
+    return None if os.path.abspath(value) == os.path.abspath(default_cache_dir()) else value
+
+
+def compile_cache_dir(root: str | Path | None = None) -> Path | None:
+    """The compile cache folder a compile would use: ``$TORCHINDUCTOR_CACHE_DIR`` when a user set it, else
+    ``root/torch_compile``, else torch's default (None when that is not set yet)."""
+    if (user := _user_cache_dir()) is not None:
+        return Path(user)
+    if root is not None:
+        return Path(root).expanduser().resolve() / CACHE_SUBDIR
+    return Path(os.environ[CACHE_ENV]) if CACHE_ENV in os.environ else None
+
+
+def use_compile_cache(root: str | Path | None) -> Path | None:
+    """Point the compile cache at ``root/torch_compile`` unless a user set ``$TORCHINDUCTOR_CACHE_DIR`` (call it when
+    this process is about to compile: the variable stays set for the process and the workers it spawns).
+
+    Returns:
+        The compile cache folder in use (None: torch's own default, ``root`` being None).
+    """
+    folder = compile_cache_dir(root)
+    if folder is not None:
+        os.environ[CACHE_ENV] = str(folder)
+    return folder
+
+
+@cache
+def _kernels_version() -> str:
+    """A digest of torch's version and the compiled kernels' sources: another version compiles anew."""
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha1(torch.__version__.encode())
+    for rel in _SOURCES:
+        h.update((here / rel).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _marker(folder: Path | None = None) -> Path | None:
+    folder = folder if folder is not None else compile_cache_dir()
+    return folder / f"tvrecon-kernels-{_kernels_version()}.warm" if folder is not None else None
+
+
+def compile_cache_warm(folder: Path | None = None) -> bool:
+    """Whether this version of the kernels has compiled once into the compile cache ``folder`` (default: the one
+    ``$TORCHINDUCTOR_CACHE_DIR`` names)."""
+    marker = _marker(folder)
+    return marker is not None and marker.is_file()
+
+
+_MARKED = False
+
+
+def mark_compile_cache_warm() -> None:
+    """Record that this version of the kernels is in the compile cache (after a process's first compiled step)."""
+    global _MARKED
+    if _MARKED:
+        return
+    _MARKED = True
+    marker = _marker()
+    if marker is None:
+        return
+    try:
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.touch()
+    except OSError as err:  # a read-only cache: the next process just takes the cold threshold
+        log.debug("could not mark the compile cache warm (%s)", err)
+
+
+def resolve_compile(
+    setting: bool | str, touches: int, device: str | torch.device = "cpu", cache_root: str | Path | None = None
+) -> tuple[bool, str]:
+    """Whether a process that presses ``touches`` touches on ``device`` runs the compiled kernels.
+
+    Args:
+        setting: True / False (kept as given) or ``"auto"``.
+        touches: the touches this process will press (its share of the job).
+        device: the simulation device.
+        cache_root: the data cache, whose compile cache (:func:`compile_cache_dir`) may already be warm.
+    Returns:
+        ``(compile, why)``: the decision and a short reason for the log.
+    """
+    check_compile_setting(setting, "compile")
+    if isinstance(setting, bool):
+        return setting, "as configured"
+    dev = torch.device(device)
+    if dev.type != "cpu":
+        return False, f"auto on {dev.type}: the eager step (the compiled one was not faster there)"
+    if cpp_compiler() is None:
+        return False, "auto: no C++ compiler found (set $CXX or install g++)"
+    warm = compile_cache_warm(compile_cache_dir(cache_root))
+    need = AUTO_MIN_TOUCHES_WARM if warm else AUTO_MIN_TOUCHES_COLD
+    cache_state = "warm" if warm else "empty"
+    if touches >= need:
+        return True, f"auto: {touches} touches in this process >= {need} ({cache_state} compile cache)"
+    return False, f"auto: {touches} touches in this process < {need} ({cache_state} compile cache)"
