@@ -5,9 +5,9 @@ A compile costs the process a fixed time before its first fused step, and each t
 eager one; so it pays back only over enough touches in one process. Measured on the ``small`` preset's touches (a
 31 x 31 x 5 pad on the 64 grid; one thread, the other core busy with a training run;
 ``benchmarks/bench_compile_auto.py``):
-eager 0.55 CPU-s per touch, compiled 0.32; the first compile 131 s with an empty cache and 14 s with a warm one. The
-break-even is then about 590 touches cold and 60 warm; the thresholds below round those. The paper pads save more
-per touch (1.5 CPU-s), so they pay back sooner.
+eager 0.574 CPU-s per touch, compiled 0.324; the compile 124 CPU-s with an empty compile cache and 19 with a warm one;
+no recompiles after the first objects. The break-even is then 495 touches cold and 76 warm; the thresholds below
+round those up. Larger pads save more per touch, so they pay back sooner.
 
 - **CPU with a C++ compiler:** ``"auto"`` compiles when the process presses at least :data:`AUTO_MIN_TOUCHES_COLD`
   touches, or :data:`AUTO_MIN_TOUCHES_WARM` when this version of the kernels is already in the compile cache (a
@@ -50,9 +50,9 @@ log = logging.getLogger(__name__)
 
 #: the setting that lets the job decide (``PressConfig.compile``'s default)
 AUTO = "auto"
-#: touches per process from which ``"auto"`` compiles with an empty compile cache (break-even ~590 measured)
+#: touches per process from which ``"auto"`` compiles with an empty compile cache (break-even 495 measured)
 AUTO_MIN_TOUCHES_COLD = 500
-#: the same with this version of the kernels already in the compile cache (break-even ~60 measured)
+#: the same with this version of the kernels already in the compile cache (break-even 76 measured)
 AUTO_MIN_TOUCHES_WARM = 100
 #: inductor's cache folder variable (read by torch at each compile, so setting it before the first one is enough)
 CACHE_ENV = "TORCHINDUCTOR_CACHE_DIR"
