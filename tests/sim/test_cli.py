@@ -6,10 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 
 from tvrecon.sim.__main__ import build_parser, main
 from tvrecon.sim.press import PressConfig
+from tvrecon.sim.press.reading import TactileReading
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # see tests/conftest.py
 
@@ -40,6 +42,29 @@ def test_cli_contact_and_threshold_grid_follow_the_press_defaults(capsys) -> Non
     with pytest.raises(SystemExit):
         parse("--threshold-grid", "-1")
     assert "must be >= 0" in capsys.readouterr().err
+
+
+def test_cli_device_and_compile_flags(tmp_path: Path, capsys) -> None:
+    """``--device`` and ``--compile`` reach the simulator; a CUDA device on a machine without one is a clear error."""
+    args = build_parser().parse_args(["press", "--out", "o"])
+    assert (args.device, args.compile) == ("cpu", "auto")
+    out = tmp_path / "run"
+    base = ["press", "--shape", "sphere", "--out", str(out), "--resolution", "6", "--layers", "3", "--n-grid", "32"]
+    assert main([*base, "--depth", "0.5", "--frames", "2", "--device", "cpu", "--compile", "false"]) == 0
+    assert (out / "tactile.png").is_file()
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["press", "--out", "o", "--compile", "fast"])
+    if not torch.cuda.is_available():
+        assert main([*base, "--out", str(tmp_path / "cuda"), "--device", "cuda"]) == 2
+        assert "no CUDA device" in capsys.readouterr().err
+
+
+def test_reading_cpu_moves_every_tensor() -> None:
+    image = torch.rand(3, 4, 4)
+    r = TactileReading(image, torch.zeros(3), torch.tensor([0.0, 0.0, -1.0]), 5, 1.0, 0.1, torch.ones(3), True)
+    c = r.cpu()
+    assert c is not r and torch.equal(c.image, image) and c.steps == 5 and c.frames is None
+    assert all(t.device.type == "cpu" for t in (c.image, c.position, c.direction, c.force))
 
 
 def test_cli_torus_from_the_object_library_and_bad_input(tmp_path: Path, capsys) -> None:

@@ -36,6 +36,8 @@ from tvrecon.utils.geometry import read_mesh_file
 
 SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 PROG = "python -m tvrecon.sim"
+#: --compile values -> EIPSimulator(compile=...)
+COMPILE_CHOICES = {"auto": "auto", "true": True, "false": False}
 
 BUILTIN_SHAPES = ("torus", "gear", "sphere", "cube")
 SENSOR_OUTPUTS = ("force", "markers", "rgb")
@@ -174,9 +176,12 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
         release_steps=0,
         **press_extra,
     )
-    sim = EIPSimulator(sensor, press)
+    device = torch.device(args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {args.device}: torch sees no CUDA device here (torch {torch.__version__}); use cpu")
+    sim = EIPSimulator(sensor, press, device=device, compile=COMPILE_CHOICES[args.compile])
     # without --position: the first surface the pad meets along --direction, its footprint clear of the object
-    reading = sim.press(mesh, position, direction)
+    reading = sim.press(mesh, position, direction).cpu()  # pictures and files from host copies
     if position is None:
         assert reading.origin is not None
         print(f"touch position (no --position given): {np.round(reading.origin.numpy(), 4).tolist()}")
@@ -364,6 +369,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--marker-radius", type=float, default=1.0, help="marker dot radius (taxels)")
     p.add_argument("--height-gain", type=float, default=3.0, help="height exaggeration of the RGB image")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
+    p.add_argument("--device", default="cpu", help="torch device of the simulation (cpu, cuda, cuda:1, ...)")
+    p.add_argument(
+        "--compile",
+        choices=tuple(COMPILE_CHOICES),
+        default="auto",
+        help="the solver's fused torch.compile kernels (auto: a single press stays eager; a compile costs ~20-120 s)",
+    )
     p.add_argument(
         "--strict",
         action="store_true",

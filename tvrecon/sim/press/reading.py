@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from torch import Tensor
@@ -58,6 +59,13 @@ class TactileReading:
     particles: Tensor | None = None
     force_field: Tensor | None = None
     criterion_missed: bool = False
+
+    def cpu(self) -> TactileReading:
+        """This reading with every tensor on the CPU (a reading pressed on a GPU, for pictures and numpy)."""
+        moved = {
+            f.name: value.cpu() for f in dataclasses.fields(self) if isinstance(value := getattr(self, f.name), Tensor)
+        }
+        return dataclasses.replace(self, **moved)
 
 
 def reading_patch(reading: TactileReading, sensor: SensorConfig, press: PressConfig) -> ContactPatch:
