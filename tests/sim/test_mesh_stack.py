@@ -40,6 +40,8 @@ def test_stack_equals_each_collider_bit_for_bit():
     scene = torch.arange(3).repeat_interleave(1000)
     phi, n = stack.sdf_normal(x, scene)
     near = stack.near(x, scene, DX)
+    assert torch.equal(stack.near(x, scene, DX, block=1000), near)  # the contiguous layout's broadcast path
+    assert torch.equal(stack.near(x, scene, DX, block=999), near)  # not the layout: the per-point path
     for b, col in enumerate(cols):
         rows = scene == b
         phi_b, n_b = col.sdf_normal(x[rows])

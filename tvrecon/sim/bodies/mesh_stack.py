@@ -60,13 +60,29 @@ class MeshStack:
             and self.table.device == device
         )
 
-    def near(self, points: Tensor, scene: Tensor, reach: float) -> Tensor:
+    def near(self, points: Tensor, scene: Tensor, reach: float, block: int | None = None) -> Tensor:
         """(N, 3) points of the (N,) int64 scenes -> (N,) bool: ``MeshCollider.near(points, reach)`` of each point's
-        collider (True for every point with sdf < reach, and maybe a few more)."""
+        collider (True for every point with sdf < reach, and maybe a few more).
+
+        ``block``: the points are the contiguous layout, ``block`` per scene in scene order (a press's particles).
+        Each scene's table values are then broadcast over its rows instead of gathered per point: the same
+        arithmetic, the same result, ~3x faster on the CPU for a paper batch."""
+        if block is not None and points.shape[0] == block * len(self.colliders):
+            return self._near_blocks(points, block, reach)
         g = points.float() / self.dx - self.lo_index.to(torch.float32)[scene]
         i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), self.cmin_dims[scene] - 1)
         dims = self.cmin_dims[scene]
         least = self.cmin[self.cmin_offset[scene] + (i0[:, 0] * dims[:, 1] + i0[:, 1]) * dims[:, 2] + i0[:, 2]]
+        return least - 1e-5 * least.abs() - 1e-3 * self.dx < reach
+
+    def _near_blocks(self, points: Tensor, block: int, reach: float) -> Tensor:
+        """:meth:`near` of B contiguous blocks of ``block`` points: (B, block) views instead of (N,) gathers."""
+        B = len(self.colliders)
+        g = points.float().view(B, block, 3) / self.dx - self.lo_index.to(torch.float32)[:, None, :]
+        i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), (self.cmin_dims - 1)[:, None, :])
+        d = self.cmin_dims[:, None, :]
+        flat = (i0[..., 0] * d[..., 1] + i0[..., 1]) * d[..., 2] + i0[..., 2] + self.cmin_offset[:, None]
+        least = self.cmin[flat.view(-1)]
         return least - 1e-5 * least.abs() - 1e-3 * self.dx < reach
 
     def sdf_normal(self, points: Tensor, scene: Tensor) -> tuple[Tensor, Tensor]:

@@ -132,7 +132,12 @@ def near_surface(
         it as it is, exactly): that saves a host sync per step.
     """
     if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
-        return _near_stacked(x, colliders, batch, reach, stack)
+        first = scenes[0] if scenes else None
+        block = None  # the contiguous layout of scene_slices: equal slices in scene order
+        if isinstance(first, slice) and all(isinstance(s, slice) for s in scenes):
+            size = (first.stop or 0) - (first.start or 0)
+            block = size if size * len(scenes) == x.shape[0] else None
+        return _near_stacked(x, colliders, batch, reach, stack, block)
     found: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
     for b, col in enumerate(colliders):
         if col is None:
@@ -177,14 +182,19 @@ class MeshStackCache:
 
 
 def _near_stacked(
-    x: Tensor, colliders: Sequence[MeshCollider], batch: Tensor | None, reach: float, cache: MeshStackCache
+    x: Tensor,
+    colliders: Sequence[MeshCollider],
+    batch: Tensor | None,
+    reach: float,
+    cache: MeshStackCache,
+    block: int | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """:func:`near_surface` of B mesh colliders in one pass: one prefilter of every particle in its scene's table, one
     compaction (the step's only host sync here), one lookup; the particles of the prefilter beyond ``reach`` keep a
     distance of +inf instead of a second compaction."""
     stack = cache.get(colliders, x.device)
     scene = torch.zeros(x.shape[0], dtype=torch.int64, device=x.device) if batch is None else batch
-    cand = torch.nonzero(stack.near(x.detach(), scene, reach)).flatten()  # (K,)
+    cand = torch.nonzero(stack.near(x.detach(), scene, reach, block)).flatten()  # (K,)
     scene = scene[cand]
     phi, n = stack.sdf_normal(x[cand], scene)
     far = ~(phi.detach() < reach)  # NaN too, as the loop's compaction drops it
