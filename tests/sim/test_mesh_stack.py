@@ -63,6 +63,8 @@ def test_batched_search_finds_the_loops_contacts():
     assert torch.equal(idx_s[found], idx) and torch.equal(sc_s[found], sc)
     assert torch.equal(phi_s[found], phi) and torch.equal(n_s[found], n)
     assert idx.numel() > 100
+    blocked = near_surface(x, cols, slices, DX, batch, MeshStackCache(), block=2000)  # the press's layout
+    assert all(torch.equal(a, b) for a, b in zip(blocked, (idx_s, sc_s, phi_s, n_s)))
 
 
 def test_stack_cache_rebuilds_for_other_colliders():

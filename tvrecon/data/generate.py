@@ -327,8 +327,8 @@ def _compile_override(opts: dict[str, str], overrides: Sequence[str]) -> list[st
     datasets, and so the worker processes they are pickled into, carry it in their ``PressConfig``."""
     if "compile" not in opts:
         return []
-    value = opts["compile"].strip().lower()
-    flag = AUTO if value == AUTO else str(_flag(opts["compile"], "compile", also=AUTO)).lower()
+    auto = opts["compile"].strip().lower() == AUTO
+    flag = AUTO if auto else str(_flag(opts["compile"], "compile", also=AUTO)).lower()
     if any(o.split("=", 1)[0].lstrip("+~") == COMPILE_KEY for o in overrides):
         raise ValueError(f"give compile=... or {COMPILE_KEY}=..., not both (compile=true is {COMPILE_KEY}=true)")
     return [f"{COMPILE_KEY}={flag}"]

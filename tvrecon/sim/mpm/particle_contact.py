@@ -118,6 +118,7 @@ def near_surface(
     reach: float,
     batch: Tensor | None = None,
     stack: MeshStackCache | None = None,
+    block: int | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The particles that may be within ``reach`` of their scene's body (the only ones a contact can touch this step).
 
@@ -126,17 +127,13 @@ def near_surface(
             (:func:`scene_slices`). reach: distance (domain units).
         batch: (P,) int64 scene of each particle (None: one scene), for the one-pass search of mesh colliders.
         stack: where the stacked tables of the last colliders are kept between steps (None: the loop over scenes).
+        block: particles per scene when ``batch`` is the contiguous layout (``MLSMPM._scenes``), else None.
     Returns:
         their (K,) int64 particle indices, (K,) int64 scene indices, (K,) signed distances and (K, 3) unit normals.
         A particle beyond ``reach`` may be among them with its distance set to +inf (:func:`contact_velocity` leaves
         it as it is, exactly): that saves a host sync per step.
     """
     if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
-        first = scenes[0] if scenes else None
-        block = None  # the contiguous layout of scene_slices: equal slices in scene order
-        if isinstance(first, slice) and all(isinstance(s, slice) for s in scenes):
-            size = (first.stop or 0) - (first.start or 0)
-            block = size if size * len(scenes) == x.shape[0] else None
         return _near_stacked(x, colliders, batch, reach, stack, block)
     found: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
     for b, col in enumerate(colliders):
@@ -299,7 +296,8 @@ def particle_contact_grid(
     """
     P = state.x.shape[0]
     mu_f = friction
-    cand, scene, phi, n = near_surface(state.x, colliders, scene_slices(state.batch, B, block), dx, state.batch, stack)
+    slices = scene_slices(state.batch, B, block)
+    cand, scene, phi, n = near_surface(state.x, colliders, slices, dx, state.batch, stack, block)
     K = cand.numel()
     total = gv.new_zeros(K, 3)
     if K:
