@@ -118,7 +118,8 @@ def count_ops(
     (:func:`tvrecon.utils.op_counter.per_step`: the set-up and read-out, paid once per call, cancel).
 
     ``chunks=False`` counts the GPU's layout on the CPU: the stencil passes in one launch instead of cache-sized
-    particle chunks (``MLSMPM.chunk_size``; off on a GPU anyway)."""
+    particle chunks (``MLSMPM.chunk_size``; off on a GPU anyway) and the polar decomposition's convergence test left
+    to the loop's read (``MLSMPM.deferred_polar``, on CUDA by default)."""
     sim = EIPSimulator(sensor, press, device=device, compile=False)
     sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # warm caches (placement, SDF) like a real run
 
@@ -127,12 +128,14 @@ def count_ops(
         readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength, **limit)
         return max(int(r.steps) for r in readings)
 
-    saved = MLSMPM.chunk_size
-    MLSMPM.chunk_size = saved if chunks else 0
+    saved = MLSMPM.chunk_size, MLSMPM.deferred_polar
+    if not chunks:
+        MLSMPM.chunk_size, MLSMPM.deferred_polar = 0, True
     try:
-        return {"batch": b, "layout": "cpu chunks" if chunks and device.type == "cpu" else "one pass", **per_step(run)}
+        layout = "cpu chunks" if chunks and device.type == "cpu" else "one pass, deferred polar"
+        return {"batch": b, "layout": layout, **per_step(run)}
     finally:
-        MLSMPM.chunk_size = saved
+        MLSMPM.chunk_size, MLSMPM.deferred_polar = saved
 
 
 def _threads(value: str) -> int | None:

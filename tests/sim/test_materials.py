@@ -11,6 +11,7 @@ from tvrecon.sim.mpm.materials import (
     lame_parameters,
     p_wave_speed,
     polar_decomposition,
+    polar_decomposition_fixed,
 )
 
 
@@ -35,6 +36,25 @@ def test_polar_large_deformation():
     rot = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.7, 0.2], [0.7, 0.0, -0.4], [-0.2, 0.4, 0.0]]).double())
     R = polar_decomposition(rot @ F)
     assert torch.allclose(R, rot.expand(2, 3, 3), atol=1e-10)
+
+
+@pytest.mark.parametrize("dtype,atol,steps", [(torch.float64, 1e-10, 6), (torch.float32, 2e-5, 4)])
+def test_fixed_step_polar_matches_the_iterating_one(dtype, atol, steps):
+    F = _random_F(500, 0.1, dtype)  # |sigma - 1| up to ~0.3: a press's range (float64's stop needs a 5th step)
+    R, ok = polar_decomposition_fixed(F, n_iter=steps)
+    assert ok.dtype == torch.bool and ok.dim() == 0 and bool(ok)
+    assert torch.allclose(R, polar_decomposition(F), atol=atol)
+
+
+def test_fixed_step_polar_reports_what_it_could_not_do():
+    big = torch.diag_embed(torch.tensor([[0.05, 1.0, 20.0]], dtype=torch.float64))  # needs more than 4 steps
+    assert not bool(polar_decomposition_fixed(big)[1])
+    assert torch.allclose(polar_decomposition_fixed(big, n_iter=12)[0], torch.eye(3, dtype=torch.float64)[None])
+    bad = torch.eye(3)[None].repeat(3, 1, 1)
+    bad[1, 0, 0] = float("nan")
+    R, ok = polar_decomposition_fixed(bad)
+    assert not bool(ok) and torch.equal(R[0], torch.eye(3))  # the others are still right
+    assert not bool(polar_decomposition_fixed(torch.zeros(1, 3, 3))[1])  # singular
 
 
 def test_det3_matches_linalg():

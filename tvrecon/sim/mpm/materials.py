@@ -24,6 +24,8 @@ __all__ = [
     "det3",
     "cofactor3",
     "polar_decomposition",
+    "polar_decomposition_fixed",
+    "POLAR_FIXED_ITERS",
     "fixed_corotated_energy",
     "fixed_corotated_stress",
     "fixed_corotated_kirchhoff",
@@ -170,6 +172,50 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
             sel = busy.nonzero()[:, 0]
             active = sel if active is None else active[sel]
     return X.T.reshape(P, 3, 3)
+
+
+#: Newton steps of :func:`polar_decomposition_fixed` and of the compiled kernel's ``polar_fixed``: the eager loop needs
+#: 1 at F = R and ~3 for |sigma - 1| ~ 0.1; a particle not converged after them makes the caller iterate again
+POLAR_FIXED_ITERS = 4
+
+
+def polar_decomposition_fixed(
+    F: Tensor, n_iter: int = POLAR_FIXED_ITERS, tol: float | None = None
+) -> tuple[Tensor, Tensor]:
+    """:func:`polar_decomposition` without a host read: ``n_iter`` scaled Newton steps of every particle, each
+    particle keeping the iterate at which its step fell below the stop (the same test as the iterating loop).
+
+    The loop reads, every iteration, whether to go on (a host sync each, ~1.4 a press step); this one returns that
+    answer as a tensor for the caller's own read, so a GPU streams the step. Where ``converged`` is False (a particle
+    needs more steps, or F is singular or not finite) the caller runs :func:`polar_decomposition`, which iterates
+    further or raises.
+
+    Args:
+        F: (P, 3, 3) float32/float64, non-singular. n_iter: Newton steps. tol: as :func:`polar_decomposition`.
+
+    Returns:
+        R: (P, 3, 3) and converged: 0-dim bool, every particle's last step below the stop (a NaN step never is).
+    """
+    _check_mats(F)
+    if tol is None:
+        tol = 4.0 * torch.finfo(F.dtype).eps
+    stop = (2.0 * tol) ** 0.5
+    idx = _COF_CACHE.get(F.device)
+    if idx is None:
+        idx = _COF_CACHE.setdefault(F.device, torch.tensor(_COF_IDX, device=F.device))
+    P = F.shape[0]
+    X = F.reshape(P, 9).T.contiguous()  # (9, P), as polar_decomposition
+    done = torch.zeros(P, dtype=torch.bool, device=F.device)
+    for _ in range(n_iter):
+        g4 = X.index_select(0, idx)  # (36, P)
+        cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, P) = det(X) X^-T
+        inv_t = cof / (X[0:3] * cof[0:3]).sum(0)  # X^-T
+        gs = (inv_t.square().sum(0) / X.square().sum(0)).pow(0.25)  # Frobenius scaling, as polar_decomposition
+        X_new = 0.5 * (gs * X + inv_t / gs)
+        delta = (X_new - X).detach().abs().amax(0)  # (P,)
+        X = torch.where(done, X, X_new)
+        done = done | (delta < stop)
+    return X.T.reshape(P, 3, 3), done.all()
 
 
 def fixed_corotated_energy(F: Tensor, mu: float | Tensor, lam: float | Tensor) -> Tensor:

@@ -167,15 +167,55 @@ def near_surface(
 
 class MeshStackCache:
     """The :class:`~tvrecon.sim.bodies.mesh_stack.MeshStack` of the last step's colliders (a press asks the same
-    colliders every step until a touch finishes)."""
+    colliders every step until a touch finishes), and the contact search's candidates kept over steps.
 
-    def __init__(self) -> None:
+    With ``skin > 0`` (domain units; the solver sets it from ``MLSMPM.contact_skin``) the search keeps the particles
+    within ``reach + skin`` of the bodies, a superset of those within ``reach``, and reuses that list (a Verlet list)
+    while no particle has moved more than ``skin`` since: every particle within ``reach`` at a later step is then still
+    on it. How far they moved is measured on the device (:meth:`drift_of`) and comes back with the caller's own host
+    read (:meth:`set_drift`), so a step that reuses the list pays no host sync for its search. The candidates beyond
+    ``reach`` get a distance of +inf and add exact zeros to the contact, so the result is the same as a fresh search."""
+
+    def __init__(self, skin: float = 0.0) -> None:
         self.stack: MeshStack | None = None
+        self.skin = float(skin)
+        self.searches = 0  # fresh searches (each a host sync): a test and the benchmarks count them
+        # the list: (candidates, their scenes, the positions searched, the batch tensor, reach + skin)
+        self._list: tuple[Tensor, Tensor, Tensor, Tensor | None, float] | None = None
+        self._moved: tuple[Tensor, float] | None = None  # (positions, their host-read drift since the search)
 
     def get(self, colliders: Sequence[MeshCollider], device: torch.device) -> MeshStack:
         if self.stack is None or not self.stack.matches(colliders, device):
             self.stack = MeshStack(colliders, device)
+            self._list = self._moved = None
         return self.stack
+
+    def candidates(self, x: Tensor, batch: Tensor | None, reach: float) -> tuple[Tensor, Tensor] | None:
+        """The kept list (candidates, scenes) when it still covers ``reach`` at positions ``x`` (None: search)."""
+        kept, moved = self._list, self._moved
+        if kept is None or moved is None or moved[0] is not x or kept[3] is not batch:
+            return None
+        if not moved[1] <= kept[4] - reach:  # also NaN
+            return None
+        return kept[0], kept[1]
+
+    def keep(self, cand: Tensor, scene: Tensor, x: Tensor, batch: Tensor | None, reach: float) -> None:
+        """Remember a fresh search of positions ``x`` with ``reach`` (the skin already added)."""
+        self.searches += 1
+        self._list = (cand, scene, x.detach(), batch, reach) if self.skin > 0 else None
+        self._moved = None
+
+    def drift_of(self, x: Tensor) -> Tensor | None:
+        """0-dim: the largest distance a particle at ``x`` has moved since the kept search (None: no list, or the
+        particles changed); the caller reads it with its own host read and gives it to :meth:`set_drift`."""
+        kept = self._list
+        if kept is None or kept[2].shape != x.shape:
+            return None
+        return (x.detach() - kept[2]).square().sum(1).amax().sqrt()
+
+    def set_drift(self, x: Tensor, drift: float) -> None:
+        """The host's value of :meth:`drift_of` for positions ``x`` (the next step's)."""
+        self._moved = (x, float(drift))
 
 
 def _near_stacked(
@@ -187,12 +227,18 @@ def _near_stacked(
     block: int | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """:func:`near_surface` of B mesh colliders in one pass: one prefilter of every particle in its scene's table, one
-    compaction (the step's only host sync here), one lookup; the particles of the prefilter beyond ``reach`` keep a
-    distance of +inf instead of a second compaction."""
+    compaction (the step's only host sync here, skipped while the cache's kept list still covers ``reach``), one
+    lookup; the particles of the prefilter beyond ``reach`` keep a distance of +inf instead of a second compaction."""
     stack = cache.get(colliders, x.device)
-    scene = torch.zeros(x.shape[0], dtype=torch.int64, device=x.device) if batch is None else batch
-    cand = torch.nonzero(stack.near(x.detach(), scene, reach, block)).flatten()  # (K,)
-    scene = scene[cand]
+    kept = cache.candidates(x, batch, reach)
+    if kept is None:
+        scene = torch.zeros(x.shape[0], dtype=torch.int64, device=x.device) if batch is None else batch
+        wide = reach + cache.skin
+        cand = torch.nonzero(stack.near(x.detach(), scene, wide, block)).flatten()  # (K,)
+        scene = scene[cand]
+        cache.keep(cand, scene, x, batch, wide)
+    else:
+        cand, scene = kept  # no particle has moved past the skin since the search: the same superset
     phi, n = stack.sdf_normal(x[cand], scene)
     far = ~(phi.detach() < reach)  # NaN too, as the loop's compaction drops it
     phi = torch.where(far, torch.full_like(phi, math.inf), phi)

@@ -42,7 +42,12 @@ from tvrecon.sim.mpm.grid import (
     shift_nodes,
     stencil_offsets,
 )
-from tvrecon.sim.mpm.materials import fixed_corotated_kirchhoff, lame_parameters, polar_decomposition
+from tvrecon.sim.mpm.materials import (
+    fixed_corotated_kirchhoff,
+    lame_parameters,
+    polar_decomposition,
+    polar_decomposition_fixed,
+)
 from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
 from tvrecon.sim.mpm.small_matmul import matmul3
 from tvrecon.sim.mpm.state import CONTACT_MODES, MPMConfig, ParticleState, cfl_dt
@@ -83,6 +88,13 @@ class MLSMPM:
     chunk_size: int = 4096
     #: P2G's scatter in the node-major layout (:func:`~tvrecon.sim.mpm.grid.node_major_scatter`): None = on CUDA only
     node_major_p2g: bool | None = None
+    #: cells beyond the particle contact's reach kept in its candidate list, reused while no particle has moved this far
+    #: (``MeshStackCache``; only when the caller reads ``pending_drift``, as the press loop does); 0 = search every step
+    contact_skin: float = 0.5
+    #: the polar decomposition's fixed Newton steps with the convergence test left to the caller's host read
+    #: (``pending_polar_ok``; ``materials.polar_decomposition_fixed``) instead of a read each iteration: None = on CUDA
+    #: only (the CPU's iterating loop drops converged particles, which pays more than the sync costs there)
+    deferred_polar: bool | None = None
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu", compile: bool | None = None) -> None:
         if cfg.n_grid < 4:
@@ -122,7 +134,15 @@ class MLSMPM:
         self._fields = ColliderFields()  # the compiled step's collider sdf on the block grid, kept between steps
         # the particle contact's (P, 3) force per particle of the last step (contact="particle")
         self._particle_contact_force: Tensor | None = None
-        self._mesh_stack = MeshStackCache()  # the particle contact's stacked mesh colliders, kept between steps
+        # the particle contact's stacked mesh colliders and candidate list, kept between steps
+        self._mesh_stack = MeshStackCache(skin=self.contact_skin * self.dx)
+        # with defer_checks: how far the particles moved since the contact's kept search (0-dim), for the caller's read
+        self.pending_drift: Tensor | None = None
+        self._drift_x: Tensor | None = None
+        # with defer_checks and deferred_polar: whether every particle's fixed-step polar converged (0-dim bool); when
+        # the caller reads False it runs the step again with exact_polar (the iterating loop, which raises on a bad F)
+        self.pending_polar_ok: Tensor | None = None
+        self.exact_polar = False
 
     @property
     def compiled(self) -> bool:
@@ -203,15 +223,36 @@ class MLSMPM:
             colliders = list(collider)
             if len(colliders) != B:
                 raise ValueError(f"collider sequence must have one entry per scene (B={B}), got {len(colliders)}")
+        self.pending_polar_ok = None
         if self._needs_grad(state, hand_velocity, alpha):
-            return self._step(state, colliders, hand_velocity, alpha, B, block)
-        with torch.no_grad():
-            if self._kernels is not None:  # opt-in fused kernels (compile=True)
-                try:
-                    return self._fused_step(state, colliders, hand_velocity, alpha, B, block)
-                except CompileFailed:
-                    self._kernels = None  # warned once; eager from now on
-            return self._step(state, colliders, hand_velocity, alpha, B, block)
+            new = self._step(state, colliders, hand_velocity, alpha, B, block)
+        else:
+            with torch.no_grad():
+                new = None
+                if self._kernels is not None:  # opt-in fused kernels (compile=True)
+                    try:
+                        new = self._fused_step(state, colliders, hand_velocity, alpha, B, block)
+                    except CompileFailed:
+                        self._kernels = None  # warned once; eager from now on
+                if new is None:
+                    new = self._step(state, colliders, hand_velocity, alpha, B, block)
+        self._plan_drift(new)
+        return new
+
+    def _plan_drift(self, state: ParticleState) -> None:
+        """With ``defer_checks``: ``pending_drift``, how far the particles of ``state`` moved since the particle
+        contact's kept search (None: no list), for the caller's host read (:meth:`set_drift`)."""
+        self.pending_drift, self._drift_x = None, None
+        if self.defer_checks and self.cfg.contact == "particle":
+            with torch.no_grad():
+                self.pending_drift = self._mesh_stack.drift_of(state.x)
+            self._drift_x = state.x
+
+    def set_drift(self, drift: float) -> None:
+        """The host's value of ``pending_drift``: while it stays within the skin, the next step's contact reuses its
+        candidate list instead of a search with a host sync."""
+        if self._drift_x is not None:
+            self._mesh_stack.set_drift(self._drift_x, drift)
 
     def _step(
         self,
@@ -239,6 +280,20 @@ class MLSMPM:
         if self.defer_checks:
             self._plan_layout(new, B, block)
         return new
+
+    def _polar(self, F: Tensor) -> Tensor:
+        """R of F = R S (paper eq. 4's fixed-corotated stress): the iterating Newton loop, or with ``deferred_polar``
+        its fixed steps whose convergence the caller reads (``pending_polar_ok``) or, without ``defer_checks``, this
+        step reads once (instead of once per iteration)."""
+        self.pending_polar_ok = None
+        deferred = self.deferred_polar if self.deferred_polar is not None else F.device.type == "cuda"
+        if not deferred or self.exact_polar:
+            return polar_decomposition(F)
+        R, ok = polar_decomposition_fixed(F)
+        if self.defer_checks:
+            self.pending_polar_ok = ok
+            return R
+        return R if bool(ok) else polar_decomposition(F)
 
     def _plan_layout(self, state: ParticleState, B: int, block: int | None) -> None:
         """The next step's base nodes and scene bounds from ``state`` (the step's result), so that its block dims come
@@ -310,7 +365,7 @@ class MLSMPM:
 
         # stress P F^T (paper eq. 4, eq:PK; materials.py) and the affine momentum matrix
         # A = m C - gamma P F^T, gamma = 4 dt V0 / dx^2: the particle term of paper eq. 6 (eq:momentum)
-        R = polar_decomposition(F)
+        R = self._polar(F)
         tau = fixed_corotated_kirchhoff(F, self.mu, self.lam, R)  # (P, 3, 3) = P(F) F^T
         m = state.mass
         A = m[:, None, None] * C - ((4.0 * dt * inv_dx * inv_dx) * state.volume)[:, None, None] * tau

@@ -190,28 +190,22 @@ class PressLoop:
             one = B == 1 and not (v_touch.requires_grad or alpha1.requires_grad)
             hv = v_touch[0] if one else v_touch.repeat_interleave(P, dim=0)  # (3,) or (B * P, 3)
             alpha = alpha1 if one else alpha1.repeat(B)
-            state = solver.step(
-                state, collider=[touches[t].place.collider for t in active], hand_velocity=hv, alpha=alpha
-            )
-            xb = state.x.view(B, P, 3)
+            colliders = [touches[t].place.collider for t in active]
+            new, xb, contact_cells, force, bounds, host = self._advance(solver, state, colliders, hv, alpha, B, P, rest)
+            if host[4] == 0.0:  # a particle's fixed-step polar did not converge: the step again, iterating to the end
+                solver.exact_polar = True
+                try:
+                    new, xb, contact_cells, force, bounds, host = self._advance(
+                        solver, state, colliders, hv, alpha, B, P, rest
+                    )
+                finally:
+                    solver.exact_polar = False
+            state = new
             disp = disp + moved
-            contact_cells = xb[:, :HW] / dx  # (B, HW, 3): every touch's contact layer in cells, one launch
-            force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
-            lo_hi = torch.aminmax(xb[:, :HW].detach())  # NaN propagates: one reduction instead of isfinite + all
-            # one host read per step: the positions' range (divergence) and the pad forces (the stop rules)
-            # and the solver's grid speed check
-            assert solver.pending_grid_speed is not None
-            vmax = solver.pending_grid_speed.to(lo_hi.min).reshape(())
-            # and the next step's block bounds (the eager solver plans them; None from the compiled one)
-            bounds = solver.pending_bounds
-            parts = [torch.stack([lo_hi.min, lo_hi.max, vmax]), force[:, 2]]
-            if bounds is not None:
-                parts.append(bounds)
-            if rest is not None:
-                parts.append(rest_sq_sums(contact_cells.detach(), rest))
-            host = torch.cat([t.double() for t in parts]).tolist()
             solver.check_pending(host[2])
-            fz, rest_host = host[3 : 3 + B], host[3 + B :]
+            if solver.pending_drift is not None:
+                solver.set_drift(host[3])
+            fz, rest_host = host[5 : 5 + B], host[5 + B :]
             next_bounds, sq_sums = (rest_host[:9], rest_host[9:]) if bounds is not None else (None, rest_host)
             if not (math.isfinite(host[0]) and math.isfinite(host[1])):
                 raise FloatingPointError(
@@ -274,6 +268,46 @@ class PressLoop:
                     disp = disp[keep_b]
         bar.close()
         return [tc.reading for tc in touches]  # type: ignore[misc]
+
+    def _advance(
+        self,
+        solver: MLSMPM,
+        state: ParticleState,
+        colliders: list,
+        hv: Tensor,
+        alpha: Tensor,
+        B: int,
+        P: int,
+        rest: tuple[Tensor, float] | None,
+    ) -> tuple[ParticleState, Tensor, Tensor, Tensor, Tensor | None, list[float]]:
+        """One solver step of the B scenes and the step's one host read.
+
+        Returns the new state, its (B, P, 3) positions and (B, HW, 3) contact layers in cells, the (B, 3) pad forces,
+        the next step's block bounds (or None) and the host values: the contact layers' lowest and highest
+        coordinate (divergence), the solver's grid speed, the particles' drift since the contact's kept search (NaN:
+        none kept), whether the fixed-step polar converged (1.0 when not deferred), the B normal forces (the stop
+        rules), the 9 bounds when planned, then the threshold rule's sums when it runs."""
+        state = solver.step(state, collider=colliders, hand_velocity=hv, alpha=alpha)
+        xb = state.x.view(B, P, 3)
+        contact_cells = xb[:, : self.HW] / self.dx  # (B, HW, 3): every touch's contact layer in cells, one launch
+        force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
+        lo_hi = torch.aminmax(xb[:, : self.HW].detach())  # NaN propagates: one reduction instead of isfinite + all
+        # one host read per step: the positions' range (divergence), the pad forces (the stop rules), the solver's
+        # grid speed check, its deferred polar test and the contact's drift, and the next step's block bounds (the
+        # eager solver plans them; None from the compiled one)
+        assert solver.pending_grid_speed is not None
+        vmax = solver.pending_grid_speed.to(lo_hi.min).reshape(())
+        drift, ok = solver.pending_drift, solver.pending_polar_ok
+        drift = torch.full_like(vmax, math.nan) if drift is None else drift.to(vmax).reshape(())
+        ok = torch.ones_like(vmax) if ok is None else ok.to(vmax).reshape(())
+        bounds = solver.pending_bounds
+        parts = [torch.stack([lo_hi.min, lo_hi.max, vmax, drift, ok]), force[:, 2]]
+        if bounds is not None:
+            parts.append(bounds)
+        if rest is not None:
+            parts.append(rest_sq_sums(contact_cells.detach(), rest))
+        host = torch.cat([t.double() for t in parts]).tolist()
+        return state, xb, contact_cells, force, bounds, host
 
     def _image(self, x_contact: Tensor, disp: Tensor, rest: Tensor | None = None) -> Tensor:
         """(HW, 3) domain positions -> (3, H, W) displacement in cells with the hand translation removed.

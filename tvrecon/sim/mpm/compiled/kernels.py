@@ -33,6 +33,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from tvrecon.sim.mpm.materials import POLAR_FIXED_ITERS
+
 __all__ = [
     "NEWTON_ITERS",
     "stencil_weights",
@@ -46,7 +48,7 @@ __all__ = [
 
 #: fixed Newton iterations of :func:`polar_fixed` (eager needs 1 at F = R, ~3 for |sigma - 1| ~ 0.1); a step where a
 #: particle has not converged after them recomputes R with the eager loop.
-NEWTON_ITERS = 4
+NEWTON_ITERS = POLAR_FIXED_ITERS
 
 _OFFS = [(i, j, k) for i in range(3) for j in range(3) for k in range(3)]  # stencil offsets, i slowest
 
