@@ -119,7 +119,8 @@ def count_ops(
 
     ``chunks=False`` counts the GPU's layout on the CPU: the stencil passes in one launch instead of cache-sized
     particle chunks (``MLSMPM.chunk_size``; off on a GPU anyway) and the polar decomposition's convergence test left
-    to the loop's read (``MLSMPM.deferred_polar``, on CUDA by default)."""
+    to the loop's read (``MLSMPM.deferred_polar``) and the contact's kept candidate list (``MLSMPM.contact_skin``), as
+    on CUDA by default."""
     sim = EIPSimulator(sensor, press, device=device, compile=False)
     sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # warm caches (placement, SDF) like a real run
 
@@ -128,14 +129,14 @@ def count_ops(
         readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength, **limit)
         return max(int(r.steps) for r in readings)
 
-    saved = MLSMPM.chunk_size, MLSMPM.deferred_polar
+    saved = MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin
     if not chunks:
-        MLSMPM.chunk_size, MLSMPM.deferred_polar = 0, True
+        MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin = 0, True, 0.5
     try:
-        layout = "cpu chunks" if chunks and device.type == "cpu" else "one pass, deferred polar"
+        layout = "cpu chunks" if chunks and device.type == "cpu" else "one pass, deferred polar, contact list"
         return {"batch": b, "layout": layout, **per_step(run)}
     finally:
-        MLSMPM.chunk_size, MLSMPM.deferred_polar = saved
+        MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin = saved
 
 
 def _threads(value: str) -> int | None:

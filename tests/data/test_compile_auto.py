@@ -30,9 +30,12 @@ def datamodule(monkeypatch: pytest.MonkeyPatch, tmp_path: Path):
 
 
 def test_pregenerate_settles_auto_for_its_process(monkeypatch, datamodule, tmp_path: Path) -> None:
-    """4 uncached items of 3 touches in one process: 12 touches; compiled at a threshold of 12, not at 13, and the
-    compile cache then goes under the data cache."""
-    for threshold, expected in ((13, False), (12, True)):
+    """4 uncached items of 3 touches in one process: 12 touches of this pad (each ``touch_work`` reference touches);
+    compiled at a threshold of just that, not just above, and the compile cache then goes under the data cache."""
+    probe = datamodule.make_dataset("train")
+    (h, w), layers = probe.sensor.resolution, probe.sensor.layers
+    counted = 12 * policy.touch_work(h * w * layers, probe.press.n_grid)
+    for threshold, expected in ((counted * 1.001, False), (counted, True)):
         monkeypatch.setattr(policy, "AUTO_MIN_TOUCHES_COLD", threshold)
         ds = datamodule.make_dataset("train")
         assert ds.press.compile == "auto"

@@ -50,6 +50,18 @@ def test_auto_compiles_a_large_cpu_job_only(clean_policy, monkeypatch: pytest.Mo
     assert on is False and "no C++ compiler" in why
 
 
+def test_auto_counts_a_larger_pad_as_more_touches(clean_policy) -> None:
+    """The thresholds count touches of the small preset's pad; the authors' pad (61 x 61 x 10 on 128) saves ~30x more
+    per touch (break-even 16 touches cold, measured), the demo's 19 x 19 x 3 on 40 ~7x less."""
+    assert policy.touch_work(31 * 31 * 5, 64) == 1.0
+    paper = policy.touch_work(61 * 61 * 10, 128)
+    assert 15 < paper < 16
+    on, why = policy.resolve_compile("auto", 40, work=paper)
+    assert on is True and "40 touches x 15.5 = 620 small-pad touches" in why
+    assert policy.resolve_compile("auto", 30, work=paper)[0] is False
+    assert policy.resolve_compile("auto", 3000, work=policy.touch_work(19 * 19 * 3, 40))[0] is False  # tiny pads
+
+
 def test_a_warm_compile_cache_lowers_the_threshold(clean_policy, monkeypatch: pytest.MonkeyPatch) -> None:
     root = clean_policy
     warm = policy.AUTO_MIN_TOUCHES_WARM
@@ -82,7 +94,7 @@ def test_a_user_compile_cache_is_kept(clean_policy, monkeypatch: pytest.MonkeyPa
 def test_a_press_batch_resolves_auto_with_its_own_touches(clean_policy, monkeypatch: pytest.MonkeyPatch) -> None:
     """``EIPSimulator.press_batch`` with the default ``auto`` compiles when its call alone has enough touches."""
     monkeypatch.setattr(backend, "_KERNELS", SimpleNamespace(failed=False))  # stand-in kernels, never called
-    monkeypatch.setattr(policy, "AUTO_MIN_TOUCHES_COLD", 2)
+    monkeypatch.setattr(policy, "AUTO_MIN_TOUCHES_COLD", 2 * policy.touch_work(8 * 8 * 3, 32))  # two of its touches
     built: list[bool] = []
 
     class Caught(MLSMPM):

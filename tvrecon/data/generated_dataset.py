@@ -36,7 +36,7 @@ from tvrecon.data.touches import (
     sample_touches,
     simulate_touches,
 )
-from tvrecon.sim.mpm.compiled.policy import resolve_compile, use_compile_cache
+from tvrecon.sim.mpm.compiled.policy import resolve_compile, touch_work, use_compile_cache
 from tvrecon.sim.mpm.state import MPMConfig, cfl_dt
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.simulator import EIPSimulator
@@ -184,7 +184,9 @@ class GeneratedDataset(Dataset):
         """
         root = self.cache.root if self.cache.enabled else None
         device = self.sim_device if self.sim_device is not None else "cpu"
-        on, why = resolve_compile(self.press.compile, int(touches), device, root)
+        (h, w), layers = self.sensor.resolution, int(self.sensor.layers)
+        work = touch_work(int(h) * int(w) * layers, int(self.press.n_grid))  # the pad's cost per touch
+        on, why = resolve_compile(self.press.compile, int(touches), device, root, work=work)
         if on:
             use_compile_cache(root)
         if on != self.press.compile:

@@ -89,8 +89,10 @@ class MLSMPM:
     #: P2G's scatter in the node-major layout (:func:`~tvrecon.sim.mpm.grid.node_major_scatter`): None = on CUDA only
     node_major_p2g: bool | None = None
     #: cells beyond the particle contact's reach kept in its candidate list, reused while no particle has moved this far
-    #: (``MeshStackCache``; only when the caller reads ``pending_drift``, as the press loop does); 0 = search every step
-    contact_skin: float = 0.5
+    #: (``MeshStackCache``; only when the caller reads ``pending_drift``, as the press loop does); 0 = search every
+    #: step. None = 0.5 on CUDA, where each search is a host sync, and 0 on the CPU, where the list's extra candidates
+    #: cost more than the searches it saves (paper pad, eager: 1-10% slower per touch at 0.25-0.5, measured)
+    contact_skin: float | None = None
     #: the polar decomposition's fixed Newton steps with the convergence test left to the caller's host read
     #: (``pending_polar_ok``; ``materials.polar_decomposition_fixed``) instead of a read each iteration: None = on CUDA
     #: only (the CPU's iterating loop drops converged particles, which pays more than the sync costs there)
@@ -135,7 +137,8 @@ class MLSMPM:
         # the particle contact's (P, 3) force per particle of the last step (contact="particle")
         self._particle_contact_force: Tensor | None = None
         # the particle contact's stacked mesh colliders and candidate list, kept between steps
-        self._mesh_stack = MeshStackCache(skin=self.contact_skin * self.dx)
+        skin = self.contact_skin if self.contact_skin is not None else (0.5 if self.device.type == "cuda" else 0.0)
+        self._mesh_stack = MeshStackCache(skin=skin * self.dx)
         # with defer_checks: how far the particles moved since the contact's kept search (0-dim), for the caller's read
         self.pending_drift: Tensor | None = None
         self._drift_x: Tensor | None = None

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from tvrecon.sim.mpm.compiled.policy import resolve_compile
+from tvrecon.sim.mpm.compiled.policy import resolve_compile, touch_work
 from tvrecon.sim.mpm.solver import MLSMPM
 from tvrecon.sim.mpm.state import MPMConfig, ParticleState
 from tvrecon.sim.press.config import PressConfig
@@ -168,7 +168,8 @@ class PressLoop:
         )
         # the back layer is glued to the rigid, heavy mount (see SensorConfig.mount_mass)
         state = dataclasses.replace(state, mass=state.mass * mass_scale(s, device=dev).repeat(B))
-        solver = MLSMPM(self.mcfg, device=dev, compile=resolve_compile(self.compile, len(places), dev)[0])
+        work = touch_work(P, int(p.n_grid))
+        solver = MLSMPM(self.mcfg, device=dev, compile=resolve_compile(self.compile, len(places), dev, work=work)[0])
         solver.defer_checks = True  # its grid speed check rides on the step's one host read below
         x0_contact = self.x0_contact = x_rest[:HW] / dx  # (HW, 3) cells
         lattice = (H, W, float(s.spacing))

@@ -7,7 +7,10 @@ eager one; so it pays back only over enough touches in one process. Measured on 
 ``benchmarks/bench_compile_auto.py``):
 eager 0.574 CPU-s per touch, compiled 0.324; the compile 124 CPU-s with an empty compile cache and 19 with a warm one;
 no recompiles after the first objects. The break-even is then 495 touches cold and 76 warm; the thresholds below
-round those up. Larger pads save more per touch, so they pay back sooner.
+round those up. Larger pads save more per touch, so they pay back sooner: the thresholds count touches of that pad,
+and a touch of another pad counts :func:`touch_work` of them (its particles times its grid, as the steps of a press
+to the same relative depth grow with the grid). The authors' 61 x 61 x 10 pad on the 128 grid counts 15.5: it
+compiles from 33 touches cold (break-even measured 16) and 7 warm (1).
 
 - **CPU with a C++ compiler:** ``"auto"`` compiles when the process presses at least :data:`AUTO_MIN_TOUCHES_COLD`
   touches, or :data:`AUTO_MIN_TOUCHES_WARM` when this version of the kernels is already in the compile cache (a
@@ -43,6 +46,7 @@ __all__ = [
     "cpp_compiler",
     "mark_compile_cache_warm",
     "resolve_compile",
+    "touch_work",
     "use_compile_cache",
 ]
 
@@ -54,6 +58,8 @@ AUTO = "auto"
 AUTO_MIN_TOUCHES_COLD = 500
 #: the same with this version of the kernels already in the compile cache (break-even 76 measured)
 AUTO_MIN_TOUCHES_WARM = 100
+#: the reference touch of the thresholds: the ``small`` preset's 31 x 31 x 5 pad (particles) on the 64 grid
+REF_PARTICLES, REF_GRID = 31 * 31 * 5, 64
 #: inductor's cache folder variable (read by torch at each compile, so setting it before the first one is enough)
 CACHE_ENV = "TORCHINDUCTOR_CACHE_DIR"
 #: the compile cache's folder inside the data cache
@@ -152,8 +158,18 @@ def mark_compile_cache_warm() -> None:
         log.debug("could not mark the compile cache warm (%s)", err)
 
 
+def touch_work(particles: int, n_grid: int) -> float:
+    """What one touch of a pad of ``particles`` on an ``n_grid`` grid costs, in touches of the thresholds' reference
+    pad (31 x 31 x 5 on 64): the particles times the grid (the steps of a press to a given share of the object)."""
+    return (int(particles) * int(n_grid)) / (REF_PARTICLES * REF_GRID)
+
+
 def resolve_compile(
-    setting: bool | str, touches: int, device: str | torch.device = "cpu", cache_root: str | Path | None = None
+    setting: bool | str,
+    touches: int,
+    device: str | torch.device = "cpu",
+    cache_root: str | Path | None = None,
+    work: float = 1.0,
 ) -> tuple[bool, str]:
     """Whether a process that presses ``touches`` touches on ``device`` runs the compiled kernels.
 
@@ -162,6 +178,7 @@ def resolve_compile(
         touches: the touches this process will press (its share of the job).
         device: the simulation device.
         cache_root: the data cache, whose compile cache (:func:`compile_cache_dir`) may already be warm.
+        work: what one of these touches costs in reference touches (:func:`touch_work`; 1: the reference pad).
     Returns:
         ``(compile, why)``: the decision and a short reason for the log.
     """
@@ -176,6 +193,10 @@ def resolve_compile(
     warm = compile_cache_warm(compile_cache_dir(cache_root))
     need = AUTO_MIN_TOUCHES_WARM if warm else AUTO_MIN_TOUCHES_COLD
     cache_state = "warm" if warm else "empty"
-    if touches >= need:
-        return True, f"auto: {touches} touches in this process >= {need} ({cache_state} compile cache)"
-    return False, f"auto: {touches} touches in this process < {need} ({cache_state} compile cache)"
+    counted = touches * float(work)
+    what = f"{touches} touches"
+    if work != 1.0:
+        what += f" x {float(work):.3g} = {counted:.0f} small-pad touches"
+    if counted >= need:
+        return True, f"auto: {what} in this process >= {need} ({cache_state} compile cache)"
+    return False, f"auto: {what} in this process < {need} ({cache_state} compile cache)"
