@@ -73,7 +73,8 @@ class PressConfig:
             (``config_utils.NOT_IN_KEY``) and a cache filled either way serves both. True, False or ``"auto"``
             (default): the job decides (:func:`tvrecon.sim.mpm.compiled.policy.resolve_compile`): ``generate`` and
             the datamodules compile on a CPU with a C++ compiler when a process presses enough touches to pay back its
-            compile (500, or 100 with a warm compile cache); a single press, CUDA and small jobs stay eager. Steps that
+            compile (500 touches of the ``small`` pad, or 100 with a warm compile cache; a touch of another pad counts
+            as ``policy.touch_work``); a single press, CUDA and small jobs stay eager. Steps that
             need autograd always run eager.
 
     The earlier default press (grid-node collider, threshold in the press's own cells) is
