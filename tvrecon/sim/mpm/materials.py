@@ -117,6 +117,31 @@ def det3(F: Tensor) -> Tensor:
     return (F[:, 0] * torch.linalg.cross(F[:, 1], F[:, 2], dim=1)).sum(-1)
 
 
+def _newton_start(F: Tensor, tol: float | None) -> tuple[Tensor, Tensor, float]:
+    """The scaled Newton iteration's start: F's (9, P) entries as contiguous rows (so every op of a step is a flat
+    vector op), the cofactor index table of F's device and the step-size stop ``sqrt(2 tol)`` (tol: default 4 eps)."""
+    _check_mats(F)
+    if tol is None:
+        tol = 4.0 * torch.finfo(F.dtype).eps
+    idx = _COF_CACHE.get(F.device)
+    if idx is None:
+        idx = _COF_CACHE.setdefault(F.device, torch.tensor(_COF_IDX, device=F.device))
+    return F.reshape(F.shape[0], 9).T.contiguous(), idx, (2.0 * tol) ** 0.5
+
+
+def _newton_step(X: Tensor, idx: Tensor) -> tuple[Tensor, Tensor]:
+    """One scaled Newton step ``X <- (g X + X^-T / g) / 2`` of (9, P) rows; returns the new rows and each particle's
+    (P,) largest entry change."""
+    g4 = X.index_select(0, idx)  # (36, P): the four factor tables of the cofactors
+    cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, P) = det(X) X^-T
+    det = (X[0:3] * cof[0:3]).sum(0)  # (P,)
+    inv_t = cof / det  # X^-T
+    # Frobenius scaling g = (|X^-1|_F / |X|_F)^(1/2), ~1 near convergence, keeps Newton quadratically convergent
+    gs = (inv_t.square().sum(0) / X.square().sum(0)).pow(0.25)
+    X_new = 0.5 * (gs * X + inv_t / gs)
+    return X_new, (X_new - X).detach().abs().amax(0)
+
+
 def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None) -> Tensor:
     """Orthogonal factor R of the polar decomposition ``F = R S`` (S symmetric positive semi-definite).
 
@@ -135,26 +160,12 @@ def polar_decomposition(F: Tensor, max_iter: int = 20, tol: float | None = None)
     Returns:
         (P, 3, 3) orthogonal matrices R, same dtype as F.
     """
-    _check_mats(F)
-    if tol is None:
-        tol = 4.0 * torch.finfo(F.dtype).eps
-    stop = (2.0 * tol) ** 0.5
-    idx = _COF_CACHE.get(F.device)
-    if idx is None:
-        idx = _COF_CACHE.setdefault(F.device, torch.tensor(_COF_IDX, device=F.device))
+    X, idx, stop = _newton_start(F, tol)
     P = F.shape[0]
-    X = F.reshape(P, 9).T.contiguous()  # (9, P): entries as contiguous rows, so every op below is a flat vector op
     active: Tensor | None = None  # indices of the particles still iterating (None = all)
     for _ in range(max_iter):
         Xa = X if active is None else X.index_select(1, active)
-        g4 = Xa.index_select(0, idx)  # (36, Pa): the four factor tables of the cofactors
-        cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, Pa) = det(X) X^-T
-        det = (Xa[0:3] * cof[0:3]).sum(0)  # (Pa,)
-        inv_t = cof / det  # X^-T
-        # Frobenius scaling g = (|X^-1|_F / |X|_F)^(1/2), ~1 near convergence, keeps Newton quadratically convergent
-        gs = (inv_t.square().sum(0) / Xa.square().sum(0)).pow(0.25)
-        X_new = 0.5 * (gs * Xa + inv_t / gs)
-        delta = (X_new - Xa).detach().abs().amax(0)  # (Pa,)
+        X_new, delta = _newton_step(Xa, idx)
         X = X_new if active is None else X.index_copy(1, active, X_new)
         busy = delta >= stop
         # one host read: the non-finite count (NaN and inf are never < inf) and the count still iterating
@@ -196,23 +207,11 @@ def polar_decomposition_fixed(
     Returns:
         R: (P, 3, 3) and converged: 0-dim bool, every particle's last step below the stop (a NaN step never is).
     """
-    _check_mats(F)
-    if tol is None:
-        tol = 4.0 * torch.finfo(F.dtype).eps
-    stop = (2.0 * tol) ** 0.5
-    idx = _COF_CACHE.get(F.device)
-    if idx is None:
-        idx = _COF_CACHE.setdefault(F.device, torch.tensor(_COF_IDX, device=F.device))
+    X, idx, stop = _newton_start(F, tol)
     P = F.shape[0]
-    X = F.reshape(P, 9).T.contiguous()  # (9, P), as polar_decomposition
     done = torch.zeros(P, dtype=torch.bool, device=F.device)
     for _ in range(n_iter):
-        g4 = X.index_select(0, idx)  # (36, P)
-        cof = g4[0:9] * g4[9:18] - g4[18:27] * g4[27:36]  # (9, P) = det(X) X^-T
-        inv_t = cof / (X[0:3] * cof[0:3]).sum(0)  # X^-T
-        gs = (inv_t.square().sum(0) / X.square().sum(0)).pow(0.25)  # Frobenius scaling, as polar_decomposition
-        X_new = 0.5 * (gs * X + inv_t / gs)
-        delta = (X_new - X).detach().abs().amax(0)  # (P,)
+        X_new, delta = _newton_step(X, idx)
         X = torch.where(done, X, X_new)
         done = done | (delta < stop)
     return X.T.reshape(P, 3, 3), done.all()
