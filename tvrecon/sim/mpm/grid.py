@@ -10,6 +10,7 @@ fixed shift along the node axis (:func:`shift_nodes`). :class:`Stencil` is what 
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -152,10 +153,14 @@ def block_dims(lo_f: Tensor, hi_f: Tensor, B: int) -> list[int]:
 
 
 def block_index(
-    base_f: Tensor, lo_f: Tensor, batch: Tensor | None, B: int, block: int | None, D: list[int]
+    base_f: Tensor, lo_f: Tensor, batch: Tensor | None, B: int, block: int | None, D: list[int], clamp: bool = False
 ) -> tuple[Tensor, Tensor]:
     """The per-scene origin lo (B, 3) int64 and the linear block-grid node index (P,) of each particle's base node,
-    for block dims ``D`` (:func:`block_layout`'s last part)."""
+    for block dims ``D`` (:func:`block_layout`'s last part).
+
+    ``clamp``: ``D`` was not read from these bounds (a window of unread steps, ``MLSMPM.trust_next``): a base node
+    outside the block is moved to its edge, so that the step stays in range (its result is then wrong, and the caller,
+    who reads the bounds afterwards, runs it again)."""
     nb = D[0] * D[1] * D[2]
     lo = lo_f.to(torch.int64)  # (B, 3)
     base = base_f.to(torch.int64)
@@ -163,6 +168,8 @@ def block_index(
         local = (base.view(B, block, 3) - lo[:, None]).view(-1, 3)
     else:
         local = base - (lo if batch is None else lo[batch])  # (P, 3)
+    if clamp:
+        local = torch.clamp(local, min=_zeros3(local.device), max=_top_nodes(tuple(D), local.device))
     lin = (local[:, 0] * D[1] + local[:, 1]) * D[2] + local[:, 2]
     if batch is not None:
         if block is not None:
@@ -170,6 +177,17 @@ def block_index(
         else:
             lin = lin + batch * nb
     return lo, lin
+
+
+@functools.lru_cache(maxsize=8)
+def _zeros3(device: torch.device) -> Tensor:
+    return torch.zeros(3, dtype=torch.int64, device=device)
+
+
+@functools.lru_cache(maxsize=64)
+def _top_nodes(D: tuple[int, ...], device: torch.device) -> Tensor:
+    """(3,) int64: the highest base node of a block of dims ``D`` (its stencil's last node is the block's)."""
+    return torch.tensor(D, dtype=torch.int64, device=device) - 3
 
 
 def block_layout(

@@ -64,6 +64,19 @@ class _NextLayout:
     base_f: Tensor  # (P, 3) base nodes
     lo_f: Tensor  # (B, 3) per-scene lowest base node
     D: list[int] | None  # block dims, once the caller has read them
+    padded: bool = False  # D was not read but given with a margin (:meth:`MLSMPM.trust_next`): clamp the indices
+
+
+@dataclass
+class WindowMark:
+    """What :meth:`MLSMPM.mark` keeps of the solver's own state at the start of a window of unread steps, so that
+    :meth:`MLSMPM.rewind` can run those steps again from there as if they had never run."""
+
+    layout: _NextLayout | None
+    layout_dims: list[int] | None
+    layout_padded: bool
+    contact_list: object
+    contact_moved: object
 
 
 class MLSMPM:
@@ -146,6 +159,7 @@ class MLSMPM:
         # the caller reads False it runs the step again with exact_polar (the iterating loop, which raises on a bad F)
         self.pending_polar_ok: Tensor | None = None
         self.exact_polar = False
+        self.last_dims: list[int] | None = None  # the block dims of the last eager step
 
     @property
     def compiled(self) -> bool:
@@ -183,7 +197,8 @@ class MLSMPM:
             self._scenes_of = (batch, version, B, block)
         return B, block
 
-    def _needs_grad(self, state: ParticleState, hand_velocity: Tensor | None, alpha: Tensor | None) -> bool:
+    def needs_grad(self, state: ParticleState, hand_velocity: Tensor | None, alpha: Tensor | None) -> bool:
+        """Whether a step of ``state`` with these inputs runs under autograd."""
         if not torch.is_grad_enabled():
             return False
         ts = [state.x, state.v, state.C, state.F, state.volume, state.mass, hand_velocity, alpha, self.mu, self.lam]
@@ -227,7 +242,7 @@ class MLSMPM:
             if len(colliders) != B:
                 raise ValueError(f"collider sequence must have one entry per scene (B={B}), got {len(colliders)}")
         self.pending_polar_ok = None
-        if self._needs_grad(state, hand_velocity, alpha):
+        if self.needs_grad(state, hand_velocity, alpha):
             new = self._step(state, colliders, hand_velocity, alpha, B, block)
         else:
             with torch.no_grad():
@@ -314,6 +329,40 @@ class MLSMPM:
         if self._next_layout is not None:
             self._next_layout.D = dims_from_bounds(bounds, B)
 
+    # ------------------------------------------------------------------ windows of unread steps (PressLoop.read_every)
+    @property
+    def contact_skin_domain(self) -> float:
+        """The particle contact's kept-list skin in domain units (0: a search every step)."""
+        return self._mesh_stack.skin
+
+    def trust_next(self, dims: list[int]) -> None:
+        """Set up the next step without the caller's host read of this one: its block dims are ``dims`` (a margin over
+        what was last read; the indices are clamped into the block, so a particle outside it cannot index out of
+        range) and the contact reuses its kept candidate list as if no particle had moved. The caller checks both
+        with its later read of this step's ``pending_bounds`` and ``pending_drift`` and, where either did not hold,
+        rewinds (:meth:`rewind`) and steps again with a read each step."""
+        if self._next_layout is not None:
+            self._next_layout.D, self._next_layout.padded = list(dims), True
+        if self._drift_x is not None:
+            self._mesh_stack.set_drift(self._drift_x, 0.0)
+
+    def mark(self) -> WindowMark:
+        """The solver's own state now (the next step's planned layout, the contact's kept list)."""
+        plan, ms = self._next_layout, self._mesh_stack
+        return WindowMark(plan, None if plan is None else plan.D, plan is not None and plan.padded, ms._list, ms._moved)
+
+    def rewind(self, mark: WindowMark) -> None:
+        """Back to :meth:`mark`'s state: the next step is the one that followed it."""
+        if mark.layout is not None:
+            mark.layout.D, mark.layout.padded = mark.layout_dims, mark.layout_padded
+        self._next_layout = mark.layout
+        self._mesh_stack._list, self._mesh_stack._moved = mark.contact_list, mark.contact_moved  # type: ignore[assignment]
+
+    def force_source(self) -> tuple[Transfer | None, Tensor | None]:
+        """What :meth:`last_particle_force` reads of the last step (references), to share that step's force out
+        later, after further steps."""
+        return self._last_transfer, self._particle_contact_force
+
     def _fused_step(
         self,
         state: ParticleState,
@@ -346,10 +395,11 @@ class MLSMPM:
         plan, self._next_layout, self.pending_bounds = self._next_layout, None, None
         if plan is not None and plan.D is not None and plan.x is x and plan.version == x._version:
             base_f, D = plan.base_f, plan.D  # laid out by the last step, its dims read with the caller's read
-            lo, lin = block_index(base_f, plan.lo_f, state.batch, B, block, D)
+            lo, lin = block_index(base_f, plan.lo_f, state.batch, B, block, D, clamp=plan.padded)
         else:
             base_f = torch.floor(Xg.detach() - 0.5)  # (P, 3)
             lo, lin, D = block_layout(base_f, state.batch, B, block)
+        self.last_dims = D
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
         # channel-first layouts (..., P) below: every big elementwise op runs over contiguous particle rows
         fxt = fx.T.contiguous()  # (3, P)
@@ -467,7 +517,7 @@ class MLSMPM:
         F_new = F + dt * matmul3(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
 
-    def last_particle_force(self, mass: Tensor) -> Tensor:
+    def last_particle_force(self, mass: Tensor, source: tuple[Transfer | None, Tensor | None] | None = None) -> Tensor:
         """The last step's collider force shared out over the particles that moved its nodes.
 
         Node i's force f_i (momentum the collider removed, / dt) goes to particle p in proportion to p's share of the
@@ -476,21 +526,23 @@ class MLSMPM:
 
         Args:
             mass: (P,) particle masses of the state passed to the last ``step``.
+            source: an earlier step's :meth:`force_source` (None: the last step's).
         Returns:
             (P, 3) force on each particle (domain axes, simulation units), detached.
         """
-        if self._last_transfer is None:
+        transfer, contact_force = self.force_source() if source is None else source
+        if transfer is None:
             raise RuntimeError("last_particle_force needs a step first")
         if self.cfg.contact == "particle":  # the collider acted on the particles: their own forces
-            return self._particle_contact_force
-        w = self._last_transfer.w
+            return contact_force  # type: ignore[return-value]
+        w = transfer.w
         o_int = self._constants(w.dtype, w.device)[2]
         if self._kernels is not None:  # compiled: one fused gather (same terms, compiled.step.particle_force)
             try:
-                return particle_force(self._kernels, self._last_transfer, mass, o_int)
+                return particle_force(self._kernels, transfer, mass, o_int)
             except CompileFailed:
                 self._kernels = None  # warned once; eager from now on
-        return share_node_force(self._last_transfer, mass, o_int)
+        return share_node_force(transfer, mass, o_int)
 
     def _speed_check(self, vmax: Tensor | None) -> None:
         """The grid speed check of a step (:func:`~tvrecon.sim.mpm.grid.check_grid_speed`) on ``vmax``, the 0-dim

@@ -102,8 +102,51 @@ class TouchRun:
         return self.release_left <= 0
 
 
+#: block nodes per axis added over the first step's dims for the other steps of a window of unread steps
+#: (``PressLoop.read_every``): the particles' stencils may spread this far before the window runs again with reads
+WINDOW_MARGIN = 1
+
+
+@dataclass
+class _Go:
+    """What every step of one loop iteration is run with (B scenes of P particles)."""
+
+    solver: MLSMPM
+    colliders: list
+    hv: Tensor  # (3,) or (B * P, 3) hand velocity
+    alpha: Tensor  # (B * P,) or (P,)
+    moved: Tensor  # (B, 3) hand displacement per step
+    B: int
+    P: int
+    rest: tuple[Tensor, float] | None  # the threshold rule's rest terms
+
+
+@dataclass
+class _Step:
+    """One solver step of the loop and what its touches' stop checks read (references, no copies)."""
+
+    n: int  # step number
+    state: ParticleState  # after the step
+    disp: Tensor  # (B, 3) hand displacement after the step
+    xb: Tensor  # (B, P, 3) positions
+    contact_cells: Tensor  # (B, HW, 3) contact layers in cells
+    force: Tensor  # (B, 3) pad forces
+    bounds: Tensor | None  # (9,) the next step's block bounds, when the solver planned them
+    had_list: bool  # the contact kept a candidate list (its drift is in the host values)
+    force_source: tuple  # MLSMPM.force_source() of the step
+    host_tensor: Tensor  # the values of the step's host read, on the device
+    host: list[float] = field(default_factory=list)  # ... read
+
+
 class PressLoop:
-    """The shared solver loop over T placed touches (``EIPSimulator.press_batch`` builds and runs one)."""
+    """The shared solver loop over T placed touches (``EIPSimulator.press_batch`` builds and runs one).
+
+    ``read_every`` (None: 4 on CUDA, 1 on the CPU): solver steps per host read. A read costs a GPU a stall every
+    step; with more steps per read the touches that stop inside a window are stepped on to its end (their readings
+    are those of their stop step, kept by reference) and the window is checked afterwards (:meth:`_window`)."""
+
+    #: solver steps per host read (None: 4 on CUDA, where each read stalls the stream, 1 on the CPU)
+    read_every: int | None = None
 
     def __init__(
         self,
@@ -126,6 +169,8 @@ class PressLoop:
             p.max_steps if p.max_steps is not None else math.ceil((float(p.gap) + float(p.max_depth)) / self.step_cells)
         )
         self.rules = stop_rules(p, self.max_steps)
+        self.rewound = 0  # windows of unread steps run again with a read each step (a test counts them)
+        self._k = max(1, int(self.read_every if self.read_every is not None else (4 if device.type == "cuda" else 1)))
 
     def run(self, places: list[Placement]) -> list[TactileReading]:
         s, p, dev, dx, dt, H, W, HW = self.s, self.p, self.device, self.dx, self.dt, self.H, self.W, self.HW
@@ -180,9 +225,6 @@ class PressLoop:
         n = 0
         hands: dict[tuple[float, ...], tuple[Tensor, Tensor]] = {}  # signs -> hand velocity and step (no autograd)
         while active:
-            n += 1
-            if n > total + 1:
-                raise RuntimeError("press loop did not terminate (internal error)")
             B = len(active)
             signs = [touches[t].hand_sign() for t in active]
             v_touch, moved = hands.get(tuple(signs)) or _hand(signs, speed_t, down, dt, hands)  # (B, 3) each
@@ -192,73 +234,17 @@ class PressLoop:
             hv = v_touch[0] if one else v_touch.repeat_interleave(P, dim=0)  # (3,) or (B * P, 3)
             alpha = alpha1 if one else alpha1.repeat(B)
             colliders = [touches[t].place.collider for t in active]
-            new, xb, contact_cells, force, bounds, host = self._advance(solver, state, colliders, hv, alpha, B, P, rest)
-            if host[4] == 0.0:  # a particle's fixed-step polar did not converge: the step again, iterating to the end
-                solver.exact_polar = True
-                try:
-                    new, xb, contact_cells, force, bounds, host = self._advance(
-                        solver, state, colliders, hv, alpha, B, P, rest
-                    )
-                finally:
-                    solver.exact_polar = False
-            state = new
-            disp = disp + moved
-            solver.check_pending(host[2])
-            if solver.pending_drift is not None:
-                solver.set_drift(host[3])
-            fz, rest_host = host[5 : 5 + B], host[5 + B :]
-            next_bounds, sq_sums = (rest_host[:9], rest_host[9:]) if bounds is not None else (None, rest_host)
-            if not (math.isfinite(host[0]) and math.isfinite(host[1])):
-                raise FloatingPointError(
-                    f"simulation diverged at step {n} (non-finite particle positions): lower PressConfig.dt or speed, "
-                    f"or raise damping; current dt={dt:.3g}, speed={_scalar(speed):.3g}, E={_scalar(s.E):.3g}"
-                )
-            if next_bounds is not None:
-                solver.set_next_bounds(next_bounds, B)
-            particle_force = None  # (B, P, 3), computed on the first stop of this step
-            done_now = []
-            for b, t in enumerate(active):
-                tc = touches[t]
-                tc.disp = disp[b]  # a view: no launch
-                tc.travel += signs[b] * self.step_cells
-                if tc.pressing:
-                    tc.felt(fz[b])
-                    if p.record_every and tc.steps % int(p.record_every) == 0:
-                        self._record(tc, xb[b])
-                    check = StopCheck(contact_cells[b], x0_contact, lattice)
-                    if sq_sums:
-                        check.memo["rest_sq_sum"] = sq_sums[b]
-                    if should_stop(self.rules, tc, check):
-                        img = self._image(xb[b, :HW], tc.disp)
-                        # the threshold rule's exact value of this very layer, when it computed one (the same call)
-                        ch = check.memo.get("chamfer")
-                        if ch is None:
-                            ch = terminal_chamfer(check.contact_cells, x0_contact, lattice)
-                        f_world = tc.place.R @ force[b].cpu()
-                        tc.reading = self._reading(tc, img, chamfer=ch, force=f_world)
-                        if particle_force is None:
-                            particle_force = solver.last_particle_force(state.mass).view(B, P, 3)
-                        tc.reading.force_field = (
-                            column_force_field(particle_force[b], (H, W), int(s.layers)).float().cpu()
-                        )
-                        _warn_if_passed_through(tc, p)
-                        if tc.contact and criterion_missed(self.rules, tc, check):
-                            tc.reading.criterion_missed = True
-                            _warn_criterion_missed(p)
-                        if p.record_every and tc.steps % int(p.record_every) != 0:
-                            self._record(tc, xb[b])
-                        tc.stop_pressing()
-                elif tc.phase is Phase.RELEASE:
-                    over = tc.released(signs[b])
-                    if p.record_every and (int(p.release_steps) - tc.release_left) % int(p.record_every) == 0:
-                        self._record(tc, xb[b])
-                    if over:
-                        assert tc.reading is not None
-                        tc.reading.residual = self._image(xb[b, :HW], tc.disp)
-                        tc.phase = Phase.DONE
-                if tc.phase is Phase.DONE:
-                    done_now.append(b)
-            bar.update(B)
+            k = self._window_length(solver, state, hv, alpha, [touches[t] for t in active])
+            go = _Go(solver, colliders, hv, alpha, moved, B, P, rest)
+            steps = self._window(go, state, disp, n, k) if k > 1 else [self._one_step(go, state, disp, n + 1)]
+            if n + len(steps) > total + 1:
+                raise RuntimeError("press loop did not terminate (internal error)")
+            n += len(steps)
+            state, disp = steps[-1].state, steps[-1].disp
+            done_now: list[int] = []
+            for st in steps:
+                self._replay(st, solver, state, touches, active, signs, done_now)
+                bar.update(B - len(done_now))
             if done_now:
                 keep_b = [b for b in range(B) if b not in done_now]
                 for b in done_now:
@@ -270,45 +256,186 @@ class PressLoop:
         bar.close()
         return [tc.reading for tc in touches]  # type: ignore[misc]
 
-    def _advance(
+    def _window_length(
+        self, solver: MLSMPM, state: ParticleState, hv: Tensor, alpha: Tensor, runs: list[TouchRun]
+    ) -> int:
+        """Steps to run before the next host read: ``read_every`` (None: 4 on CUDA, 1 on the CPU) where the steps
+        need no read between them (no autograd, no release, whose hand turns at a stop), and never past the step at
+        which the last of ``runs`` reaches its travel limit (every pressing touch has pressed as many steps)."""
+        k = self._k
+        if k <= 1 or int(self.p.release_steps) > 0 or solver.needs_grad(state, hv, alpha):
+            return 1
+        return max(1, min(int(k), self.max_steps - max(tc.steps for tc in runs)))
+
+    def _one_step(self, go: _Go, state: ParticleState, disp: Tensor, n: int) -> _Step:
+        """One step and its host read (the polar's fixed steps redone iterating when they did not converge), the
+        solver's deferred checks applied."""
+        st = self._advance(go, state, disp, n)
+        host = st.host_tensor.tolist()
+        if host[4] == 0.0:  # a particle's fixed-step polar did not converge: the step again, iterating to the end
+            go.solver.exact_polar = True
+            try:
+                st = self._advance(go, state, disp, n)
+                host = st.host_tensor.tolist()
+            finally:
+                go.solver.exact_polar = False
+        st.host = host
+        self._check(go, st, last=True)
+        return st
+
+    def _window(self, go: _Go, state: ParticleState, disp: Tensor, n: int, k: int) -> list[_Step]:
+        """``k`` steps with one host read at the end (``read_every``): each step after the first gets its block dims
+        with a margin of ``WINDOW_MARGIN`` nodes over the first's and reuses the contact's kept list. The read then
+        checks what those steps took on trust (the blocks held every particle, no particle moved past the contact's
+        skin, the fixed-step polar converged, the positions stayed finite); where one did not hold, the window runs
+        again from its start with a read every step, so the result is the same as with ``read_every=1``."""
+        solver = go.solver
+        mark = solver.mark()
+        steps: list[_Step] = []
+        cur_state, cur_disp, dims = state, disp, None
+        for j in range(k):
+            st = self._advance(go, cur_state, cur_disp, n + j + 1)
+            steps.append(st)
+            cur_state, cur_disp = st.state, st.disp
+            if j < k - 1:
+                if dims is None and solver.last_dims is not None:
+                    dims = [max(3, d + WINDOW_MARGIN) for d in solver.last_dims]
+                solver.trust_next(dims or [0, 0, 0])
+        hosts = torch.stack([st.host_tensor for st in steps]).tolist()  # the window's one host read
+        for st, host in zip(steps, hosts, strict=True):
+            st.host = host
+        if all(self._held(go, st, dims) for st in steps[:-1]) and steps[-1].host[4] != 0.0:
+            for j, st in enumerate(steps):
+                self._check(go, st, last=j == k - 1)
+            return steps
+        solver.rewind(mark)
+        self.rewound += 1
+        out = []
+        for j in range(k):
+            out.append(self._one_step(go, state, disp, n + j + 1))
+            state, disp = out[-1].state, out[-1].disp
+        return out
+
+    def _held(self, go: _Go, st: _Step, dims: list[int] | None) -> bool:
+        """Whether the step after ``st`` (run without a read of ``st``) got what it took on trust."""
+        h, B = st.host, go.B
+        if not (math.isfinite(h[0]) and math.isfinite(h[1])) or h[4] == 0.0:
+            return False
+        if st.had_list and not h[3] <= go.solver.contact_skin_domain:  # also NaN
+            return False
+        if st.bounds is not None:
+            ext = h[5 + B : 8 + B]
+            if dims is None or not all(e <= d for e, d in zip(ext, dims, strict=True)):  # also NaN
+                return False
+        return True
+
+    def _check(self, go: _Go, st: _Step, last: bool) -> None:
+        """The solver's deferred checks of a step on its host values: grid speed and divergence (raise), and for the
+        last step before the next one runs, the contact's drift and the next block dims."""
+        solver, h = go.solver, st.host
+        solver.check_pending(h[2])
+        if not (math.isfinite(h[0]) and math.isfinite(h[1])):
+            s, p = self.s, self.speed
+            raise FloatingPointError(
+                f"simulation diverged at step {st.n} (non-finite particle positions): lower PressConfig.dt or speed, "
+                f"or raise damping; current dt={self.dt:.3g}, speed={_scalar(p):.3g}, E={_scalar(s.E):.3g}"
+            )
+        if last:
+            if st.had_list:
+                # a window that would outrun the kept list (the particles moving as fast as the fastest node) searches
+                # at its first step instead of running again: the same contact, a search sooner, no steps twice
+                trusted = (self._k - 1) * h[2] * self.dt
+                solver.set_drift(h[3] if h[3] + trusted <= solver.contact_skin_domain else math.inf)
+            if st.bounds is not None:
+                solver.set_next_bounds(h[5 + go.B : 14 + go.B], go.B)
+
+    def _replay(
         self,
+        st: _Step,
         solver: MLSMPM,
         state: ParticleState,
-        colliders: list,
-        hv: Tensor,
-        alpha: Tensor,
-        B: int,
-        P: int,
-        rest: tuple[Tensor, float] | None,
-    ) -> tuple[ParticleState, Tensor, Tensor, Tensor, Tensor | None, list[float]]:
-        """One solver step of the B scenes and the step's one host read.
+        touches: list[TouchRun],
+        active: list[int],
+        signs: list[float],
+        done_now: list[int],
+    ) -> None:
+        """Each active touch's state machine on one step's values (a touch that stopped at an earlier step of the
+        window is past it); the touches done at this step are added to ``done_now``."""
+        p, s, H, W, HW = self.p, self.s, self.H, self.W, self.HW
+        x0_contact, lattice = self.x0_contact, (H, W, float(s.spacing))
+        B = len(active)
+        fz, rest_host = st.host[5 : 5 + B], st.host[5 + B :]
+        sq_sums = rest_host[9:] if st.bounds is not None else rest_host
+        particle_force = None  # (B, P, 3), computed on the first stop of this step
+        for b, t in enumerate(active):
+            tc = touches[t]
+            if b in done_now:
+                continue
+            tc.disp = st.disp[b]  # a view: no launch
+            tc.travel += signs[b] * self.step_cells
+            if tc.pressing:
+                tc.felt(fz[b])
+                if p.record_every and tc.steps % int(p.record_every) == 0:
+                    self._record(tc, st.xb[b])
+                check = StopCheck(st.contact_cells[b], x0_contact, lattice)
+                if sq_sums:
+                    check.memo["rest_sq_sum"] = sq_sums[b]
+                if should_stop(self.rules, tc, check):
+                    img = self._image(st.xb[b, :HW], tc.disp)
+                    # the threshold rule's exact value of this very layer, when it computed one (the same call)
+                    ch = check.memo.get("chamfer")
+                    if ch is None:
+                        ch = terminal_chamfer(check.contact_cells, x0_contact, lattice)
+                    f_world = tc.place.R @ st.force[b].cpu()
+                    tc.reading = self._reading(tc, img, chamfer=ch, force=f_world)
+                    if particle_force is None:
+                        P = st.xb.shape[1]
+                        particle_force = solver.last_particle_force(state.mass, st.force_source).view(B, P, 3)
+                    tc.reading.force_field = column_force_field(particle_force[b], (H, W), int(s.layers)).float().cpu()
+                    _warn_if_passed_through(tc, p)
+                    if tc.contact and criterion_missed(self.rules, tc, check):
+                        tc.reading.criterion_missed = True
+                        _warn_criterion_missed(p)
+                    if p.record_every and tc.steps % int(p.record_every) != 0:
+                        self._record(tc, st.xb[b])
+                    tc.stop_pressing()
+            elif tc.phase is Phase.RELEASE:
+                over = tc.released(signs[b])
+                if p.record_every and (int(p.release_steps) - tc.release_left) % int(p.record_every) == 0:
+                    self._record(tc, st.xb[b])
+                if over:
+                    assert tc.reading is not None
+                    tc.reading.residual = self._image(st.xb[b, :HW], tc.disp)
+                    tc.phase = Phase.DONE
+            if tc.phase is Phase.DONE:
+                done_now.append(b)
 
-        Returns the new state, its (B, P, 3) positions and (B, HW, 3) contact layers in cells, the (B, 3) pad forces,
-        the next step's block bounds (or None) and the host values: the contact layers' lowest and highest
-        coordinate (divergence), the solver's grid speed, the particles' drift since the contact's kept search (NaN:
-        none kept), whether the fixed-step polar converged (1.0 when not deferred), the B normal forces (the stop
-        rules), the 9 bounds when planned, then the threshold rule's sums when it runs."""
-        state = solver.step(state, collider=colliders, hand_velocity=hv, alpha=alpha)
-        xb = state.x.view(B, P, 3)
+    def _advance(self, go: _Go, state: ParticleState, disp: Tensor, n: int) -> _Step:
+        """Step ``n`` of the B scenes, and the values of its host read as one device vector (not read here): the
+        contact layers' lowest and highest coordinate (divergence), the solver's grid speed, the particles' drift since
+        the contact's kept search (NaN: none kept), whether the fixed-step polar converged (1.0 when not deferred),
+        the B normal forces (the stop rules), the 9 bounds of the next step's blocks when planned, then the threshold
+        rule's sums when it runs."""
+        solver, B, P = go.solver, go.B, go.P
+        new = solver.step(state, collider=go.colliders, hand_velocity=go.hv, alpha=go.alpha)
+        xb = new.x.view(B, P, 3)
         contact_cells = xb[:, : self.HW] / self.dx  # (B, HW, 3): every touch's contact layer in cells, one launch
         force = solver.last_force.detach()  # (B, 3) on the pad, domain axes
         lo_hi = torch.aminmax(xb[:, : self.HW].detach())  # NaN propagates: one reduction instead of isfinite + all
-        # one host read per step: the positions' range (divergence), the pad forces (the stop rules), the solver's
-        # grid speed check, its deferred polar test and the contact's drift, and the next step's block bounds (the
-        # eager solver plans them; None from the compiled one)
         assert solver.pending_grid_speed is not None
         vmax = solver.pending_grid_speed.to(lo_hi.min).reshape(())
         drift, ok = solver.pending_drift, solver.pending_polar_ok
+        had_list = drift is not None
         drift = torch.full_like(vmax, math.nan) if drift is None else drift.to(vmax).reshape(())
         ok = torch.ones_like(vmax) if ok is None else ok.to(vmax).reshape(())
         bounds = solver.pending_bounds
         parts = [torch.stack([lo_hi.min, lo_hi.max, vmax, drift, ok]), force[:, 2]]
         if bounds is not None:
             parts.append(bounds)
-        if rest is not None:
-            parts.append(rest_sq_sums(contact_cells.detach(), rest))
-        host = torch.cat([t.double() for t in parts]).tolist()
-        return state, xb, contact_cells, force, bounds, host
+        if go.rest is not None:
+            parts.append(rest_sq_sums(contact_cells.detach(), go.rest))
+        host = torch.cat([t.double() for t in parts])
+        return _Step(n, new, disp + go.moved, xb, contact_cells, force, bounds, had_list, solver.force_source(), host)
 
     def _image(self, x_contact: Tensor, disp: Tensor, rest: Tensor | None = None) -> Tensor:
         """(HW, 3) domain positions -> (3, H, W) displacement in cells with the hand translation removed.
