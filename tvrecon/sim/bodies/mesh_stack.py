@@ -96,20 +96,31 @@ class MeshStack:
         i1 = torch.minimum(i0 + 1, hi.long())
         f = (g - i0).to(points.dtype)
         t = self.table.to(points.dtype)
-        # the factors of MeshCollider._lookup's 8 corners, each computed once (the same values, the same order)
-        wts = [[1 - f[:, a], f[:, a]] for a in range(3)]
-        rows = [i0[:, 0] * dims[:, 1], i1[:, 0] * dims[:, 1]]
-        base = self.offset[scene]
-        out = 0.0
-        for cx in (0, 1):
-            for cy in (0, 1):
-                wxy = wts[0][cx] * wts[1][cy]
-                row = (rows[cx] + (i1[:, 1] if cy else i0[:, 1])) * dims[:, 2] + base
-                for cz in (0, 1):
-                    out = out + (wxy * wts[2][cz])[:, None] * t[row + (i1[:, 2] if cz else i0[:, 2])]
+        # the 8 corners at once (corner c = (cx, cy, cz), cx slowest), with the factors and the sum of
+        # MeshCollider._lookup's loop: the same values in the same order, in a fixed number of launches
+        cx, cy, cz = _corner_bits(points.device)
+        ii = torch.stack([i0, i1], 1)  # (N, 2, 3)
+        ww = torch.stack([1 - f, f], 1)  # (N, 2, 3)
+        rows = (ii[:, cx, 0] * dims[:, 1:2] + ii[:, cy, 1]) * dims[:, 2:3] + ii[:, cz, 2]  # (N, 8)
+        w = ww[:, cx, 0] * ww[:, cy, 1] * ww[:, cz, 2]  # (N, 8): (wx wy) wz
+        terms = w[:, :, None] * t[rows + self.offset[scene][:, None]]  # (N, 8, 4)
+        out = terms[:, 0]
+        for c in range(1, 8):
+            out = out + terms[:, c]
         lo, hi_pt = self.lo[scene].to(points), self.hi[scene].to(points)
         outside = (torch.clamp(lo - points, min=0) + torch.clamp(points - hi_pt, min=0)).norm(dim=1)
         return out[:, 0] + outside, unit_or_up(out[:, 1:])
+
+
+_CORNERS: dict[torch.device, tuple[Tensor, Tensor, Tensor]] = {}
+
+
+def _corner_bits(device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+    """(8,) int64 each: the x, y and z bit of the 8 cell corners, x slowest (``MeshCollider._lookup``'s order)."""
+    if device not in _CORNERS:
+        c = torch.arange(8, device=device)
+        _CORNERS[device] = (c // 4, (c // 2) % 2, c % 2)
+    return _CORNERS[device]
 
 
 def _offsets(sizes: list[int], device: torch.device) -> Tensor:

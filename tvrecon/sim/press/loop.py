@@ -126,7 +126,7 @@ class _Step:
     """One solver step of the loop and what its touches' stop checks read (references, no copies)."""
 
     n: int  # step number
-    state: ParticleState  # after the step
+    state: ParticleState | None  # after the step (None inside a window: only its last state is kept)
     disp: Tensor  # (B, 3) hand displacement after the step
     xb: Tensor  # (B, P, 3) positions
     contact_cells: Tensor  # (B, HW, 3) contact layers in cells
@@ -241,6 +241,7 @@ class PressLoop:
                 raise RuntimeError("press loop did not terminate (internal error)")
             n += len(steps)
             state, disp = steps[-1].state, steps[-1].disp
+            assert state is not None
             done_now: list[int] = []
             for st in steps:
                 self._replay(st, solver, state, touches, active, signs, done_now)
@@ -295,6 +296,8 @@ class PressLoop:
         cur_state, cur_disp, dims = state, disp, None
         for j in range(k):
             st = self._advance(go, cur_state, cur_disp, n + j + 1)
+            if steps:
+                steps[-1].state = None  # only the window's last state goes on (its positions stay with xb)
             steps.append(st)
             cur_state, cur_disp = st.state, st.disp
             if j < k - 1:
@@ -313,7 +316,7 @@ class PressLoop:
         out = []
         for j in range(k):
             out.append(self._one_step(go, state, disp, n + j + 1))
-            state, disp = out[-1].state, out[-1].disp
+            state, disp = out[-1].state, out[-1].disp  # type: ignore[assignment]
         return out
 
     def _held(self, go: _Go, st: _Step, dims: list[int] | None) -> bool:
