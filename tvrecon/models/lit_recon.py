@@ -82,6 +82,8 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         patch_loss_weight: weight of the training term pulling every stage's mesh through the used touches' contact
             patches (:func:`tvrecon.models.components.touch_geometry.patch_to_mesh_loss`), for networks that return
             ``touch`` (the touch-geometry model); 0 disables it.
+        visual_loss_weight: weight of the view-only answer's own loss (the Pixel2Mesh losses on ``out["visual"]``),
+            for networks that return one (the touch-residual model); 0 disables it.
     """
 
     def __init__(
@@ -110,6 +112,7 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         refine: bool = False,
         refine_steps: int = 40,
         patch_loss_weight: float = 0.0,
+        visual_loss_weight: float = 1.0,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -221,6 +224,11 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         if weight > 0 and out.get("touch") is not None:
             terms["patch"] = sum(patch_to_mesh_loss(v, out["touch"]) for v in out["verts"])
             terms["loss"] = terms["loss"] + weight * terms["patch"]
+        visual_weight = float(self.hparams.get("visual_loss_weight", 1.0))
+        if visual_weight > 0 and out.get("visual") is not None:
+            # networks whose view-only answer is a path of its own (touch_residual) train it on every sample
+            terms["visual"] = self.compute_losses(out["visual"], points, normals)["loss"]
+            terms["loss"] = terms["loss"] + visual_weight * terms["visual"]
         check_finite_loss(self, terms)  # a diverged run stops here, not with NaN results at the end
         B = points.shape[0]
         for key, value in terms.items():

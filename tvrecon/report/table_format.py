@@ -54,6 +54,7 @@ PRETTY_NAMES: dict[str, str] = {
     "single_stage": "Single-stage fusion",
     "touch_depth": "Ours + touch depth (extension)",
     "touch_geometry": "Touch geometry (beyond the paper)",
+    "touch_residual": "Touch geometry as a correction of Pixel2Mesh (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
     "classify_paper_cpu": "Tactile classifier",
@@ -149,6 +150,7 @@ ROW_ORDER: tuple[str, ...] = (
     "single_stage",
     "touch_depth",
     "touch_geometry",
+    "touch_residual",
     "smoke",
 )
 

@@ -204,6 +204,8 @@ class TouchGeometryDeformer(MeshDeformer):
         deformer_args: :class:`~tvrecon.models.components.gcn.MeshDeformer`'s arguments (feature_channels, hidden, ...).
     """
 
+    reads_touch_points = True  # forward(features, K, image_size, touch: TouchPoints | None)
+
     def __init__(self, sigmas: Sequence[float] = (0.02, 0.08, 0.3), **deformer_args: Any) -> None:
         super().__init__(**deformer_args)
         if not sigmas or any(not float(s) > 0 for s in sigmas):
@@ -262,7 +264,9 @@ class TouchGeometryReconstructor(nn.Module):
 
     Args:
         visual_backbone: visual branch (default: a randomly initialised ``ResNet18Backbone``).
-        deformer: a :class:`TouchGeometryDeformer` (default: one with the visual channels).
+        deformer: a :class:`TouchGeometryDeformer` (default: one with the visual channels) or a
+            :class:`~tvrecon.models.components.touch_residual.TouchResidualDeformer` (touches as a correction of the
+            Pixel2Mesh answer).
         tactile_backbone, fusion: must be None: this model has no tactile image branch (the keys exist so that the
             experiment config can null the paper model's entries).
         mode: ``"touch_geometry"``.
@@ -275,7 +279,7 @@ class TouchGeometryReconstructor(nn.Module):
     def __init__(
         self,
         visual_backbone: ResNet18Backbone | None = None,
-        deformer: TouchGeometryDeformer | None = None,
+        deformer: MeshDeformer | None = None,
         tactile_backbone: nn.Module | None = None,
         fusion: nn.Module | None = None,
         mode: str = "touch_geometry",
@@ -294,8 +298,11 @@ class TouchGeometryReconstructor(nn.Module):
         self.visual = visual_backbone if visual_backbone is not None else ResNet18Backbone()
         channels = list(self.visual.channels)
         self.deformer = deformer if deformer is not None else TouchGeometryDeformer(feature_channels=channels)
-        if not isinstance(self.deformer, TouchGeometryDeformer):
-            raise ValueError(f"deformer must be a TouchGeometryDeformer, got {type(self.deformer).__name__}")
+        if not getattr(self.deformer, "reads_touch_points", False):
+            raise ValueError(
+                "deformer must read touch points (a TouchGeometryDeformer or a TouchResidualDeformer), got "
+                f"{type(self.deformer).__name__}"
+            )
 
     def touch_points(
         self, RT: Tensor, patch_points: Tensor, patch_normals: Tensor, patch_mask: Tensor, touch_mask: Tensor | None
