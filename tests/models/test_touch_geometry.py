@@ -41,6 +41,25 @@ def _small_net(seed: int = 0) -> TouchGeometryReconstructor:
     return TouchGeometryReconstructor(deformer=TouchGeometryDeformer(hidden=16, num_blocks=1))
 
 
+def fit_patch_term(
+    net: torch.nn.Module,
+    image: torch.Tensor,
+    K: torch.Tensor,
+    RT: torch.Tensor,
+    patches: dict[str, torch.Tensor],
+    steps: int = 60,
+    lr: float = 3e-3,
+) -> None:
+    """``steps`` Adam steps on the patch term of the last stage's mesh (the overfit tests)."""
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    for _ in range(steps):
+        out = net(image, K, RT, **patches)
+        loss = patch_to_mesh_loss(out["verts"][-1], out["touch"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+
 def test_select_patch_points_keeps_contact_points_evenly() -> None:
     B, T, Q = 2, 3, 50
     pts = torch.arange(B * T * Q, dtype=torch.float32).reshape(B, T, Q, 1).expand(-1, -1, -1, 3).contiguous()
@@ -157,13 +176,7 @@ def test_overfits_patch_term_with_real_patches_only() -> None:
     pts, nrm, pmask = _patches(1, T, Q, seed=3)
     other_pts, other_nrm, other_mask = _patches(1, T, Q, seed=4, radius=0.15)
     own = {"patch_points": pts, "patch_normals": nrm, "patch_mask": pmask}
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    for _ in range(60):
-        out = net(image, K, RT, **own)
-        loss = patch_to_mesh_loss(out["verts"][-1], out["touch"])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+    fit_patch_term(net, image, K, RT, own)
     with torch.no_grad():
         fit = net(image, K, RT, **own)
         target = fit["touch"]

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from test_touch_geometry import _camera, _patches
+from test_touch_geometry import _camera, _patches, fit_patch_term
 
 from tvrecon.models.components.gcn import MeshDeformer
 from tvrecon.models.components.touch_geometry import TouchGeometryReconstructor, patch_to_mesh_loss
@@ -93,13 +93,7 @@ def test_overfits_own_patches_and_misses_another_objects() -> None:
     image = torch.rand(1, 3, 64, 64)
     own = _touch_inputs(1, T=6, Q=40, seed=3)
     other = _touch_inputs(1, T=6, Q=40, seed=4, radius=0.15)
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    for _ in range(60):
-        out = net(image, K, RT, **own)
-        loss = patch_to_mesh_loss(out["verts"][-1], out["touch"])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+    fit_patch_term(net, image, K, RT, own)
     with torch.no_grad():
         fit = net(image, K, RT, **own)
         swapped = net(image, K, RT, **other)
