@@ -120,8 +120,9 @@ def count_ops(
 
     ``chunks=False`` counts the GPU's layout on the CPU: the stencil passes in one launch instead of cache-sized
     particle chunks (``MLSMPM.chunk_size``; off on a GPU anyway) and the polar decomposition's convergence test left
-    to the loop's read (``MLSMPM.deferred_polar``), the contact's kept candidate list (``MLSMPM.contact_skin``) and
-    one host read per 4 steps (``PressLoop.read_every``), as on CUDA by default."""
+    to the loop's read (``MLSMPM.deferred_polar``), the contact's kept candidate list (``MLSMPM.contact_skin``), the
+    node-major P2G scatter (``MLSMPM.node_major_p2g``) and one host read per 4 steps (``PressLoop.read_every``), as on
+    CUDA by default."""
     sim = EIPSimulator(sensor, press, device=device, compile=False)
     sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # warm caches (placement, SDF) like a real run
 
@@ -130,14 +131,16 @@ def count_ops(
         readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength, **limit)
         return max(int(r.steps) for r in readings)
 
-    saved = MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, PressLoop.read_every
+    saved = MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, MLSMPM.node_major_p2g, PressLoop.read_every
     if not chunks:
-        MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, PressLoop.read_every = 0, True, 0.5, 4
+        MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, MLSMPM.node_major_p2g = 0, True, 0.5, True
+        PressLoop.read_every = 4
     try:
         layout = "cpu chunks" if chunks and device.type == "cpu" else "one pass, deferred polar, list, 4 steps a read"
         return {"batch": b, "layout": layout, **per_step(run)}
     finally:
-        MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, PressLoop.read_every = saved
+        MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, MLSMPM.node_major_p2g = saved[:4]
+        PressLoop.read_every = saved[4]
 
 
 def _threads(value: str) -> int | None:

@@ -267,7 +267,7 @@ class MeshCollider:
         i0, i1, f = self._cell(points)
         f = f.to(points.dtype)
         t = table.to(device=points.device, dtype=points.dtype)
-        out = 0.0
+        terms = []  # corner c = (cx, cy, cz), cx slowest
         for cx in (0, 1):
             ix = i1[:, 0] if cx else i0[:, 0]
             wx = f[:, 0] if cx else 1 - f[:, 0]
@@ -277,8 +277,8 @@ class MeshCollider:
                 for cz in (0, 1):
                     iz = i1[:, 2] if cz else i0[:, 2]
                     wz = f[:, 2] if cz else 1 - f[:, 2]
-                    out = out + (wx * wy * wz)[:, None] * t[ix, iy, iz]
-        return out
+                    terms.append((wx * wy * wz)[:, None] * t[ix, iy, iz])
+        return corner_sum(torch.stack(terms, 1))
 
     def _unit_normals(self, device: torch.device) -> Tensor:
         """(X * Y * Z, 3) float32 node normals renormalized in float32 (+z where zero), once per device."""
@@ -365,13 +365,30 @@ class MeshCollider:
 
     def _plus_outside(self, d: Tensor, points: Tensor) -> Tensor:
         """Interpolated sdf ``d`` (N,) plus the distance of the (N, 3) points to the region box (0 inside it)."""
-        lo, hi = self.lo.to(points), self.hi.to(points)
-        return d + (torch.clamp(lo - points, min=0) + torch.clamp(points - hi, min=0)).norm(dim=1)
+        return d + box_distance(points, self.lo.to(points), self.hi.to(points))
+
+
+def box_distance(points: Tensor, lo: Tensor, hi: Tensor) -> Tensor:
+    """(N,) Euclidean distance of (N, 3) points to the boxes ``[lo, hi]`` ((3,) or (N, 3) each; 0 inside)."""
+    return (points - torch.clamp(points, lo, hi)).norm(dim=1)
+
+
+def corner_sum(terms: Tensor) -> Tensor:
+    """(N, C) sum of the (N, 8, C) trilinear corner terms (corner c = (cx, cy, cz), cx slowest) in a fixed pairwise
+    order, three elementwise adds: every lookup that sums its corners here agrees bit for bit, whatever C."""
+    h = terms[:, :4] + terms[:, 4:]
+    h = h[:, :2] + h[:, 2:]
+    return h[:, 0] + h[:, 1]
+
+
+_UP: dict[tuple[torch.device, torch.dtype], Tensor] = {}
 
 
 def unit_or_up(n: Tensor) -> Tensor:
-    """(N, 3) vectors scaled to unit length; +z where a vector is (near) zero."""
+    """(N, 3) vectors scaled to unit length; +z where a vector is (near) zero (or not finite)."""
+    key = (n.device, n.dtype)
+    up = _UP.get(key)
+    if up is None:
+        up = _UP.setdefault(key, torch.tensor([0.0, 0.0, 1.0], dtype=n.dtype, device=n.device))
     nn = n.norm(dim=1, keepdim=True)
-    up = torch.zeros_like(n)
-    up[:, 2] = 1.0
-    return torch.where(nn > 1e-12, n / torch.where(nn > 1e-12, nn, torch.ones_like(nn)), up)
+    return torch.where(nn > 1e-12, n / torch.clamp(nn, min=1e-12), up)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from tvrecon.sim.bodies.colliders import MeshCollider, unit_or_up
+from tvrecon.sim.bodies.colliders import MeshCollider, box_distance, corner_sum, unit_or_up
 
 __all__ = ["MeshStack"]
 
@@ -51,6 +51,12 @@ class MeshStack:
         self.lo_index = torch.stack([c.lo_index.to(dev) for c in colliders])  # (B, 3) float64
         self.lo = torch.stack([c.lo.to(dev) for c in colliders])  # (B, 3) float64
         self.hi = torch.stack([c.hi.to(dev) for c in colliders])  # (B, 3) float64
+        self.box = torch.cat([self.lo, self.hi], 1)  # (B, 6): one gather of both per point
+        # sdf_normal's per-scene values, one gather each: MeshCollider._cell's float64 lo_index, top node (dims - 1)
+        # and top cell (dims - 2, >= 0); the top node, the Y and Z dims and each table's first row as int64
+        top = self.dims - 1
+        self.cell_f64 = torch.cat([self.lo_index, top.double(), torch.clamp(top - 1, min=0).double()], 1)  # (B, 9)
+        self.cell_i64 = torch.cat([top, self.dims[:, 1:], self.offset[:, None]], 1)  # (B, 6)
 
     def matches(self, colliders: Sequence[object], device: torch.device) -> bool:
         """Whether this stack was built from exactly these collider objects, in this order, on ``device``."""
@@ -88,39 +94,26 @@ class MeshStack:
     def sdf_normal(self, points: Tensor, scene: Tensor) -> tuple[Tensor, Tensor]:
         """(N, 3) points of the (N,) int64 scenes -> their (N,) signed distance and (N, 3) unit outward normal in their
         own scene's collider: ``MeshCollider.sdf_normal`` per point, one trilinear lookup for all."""
-        dims = self.dims[scene]  # (N, 3)
-        hi = (dims - 1).to(torch.float64)
-        g = points.double() / self.dx - self.lo_index[scene]
+        cell = self.cell_f64[scene]  # (N, 9): lo_index, the table's top node, the top cell (float64)
+        ints = self.cell_i64[scene]  # (N, 6): the top node, dims Y and Z, the first row of the scene's table (int64)
+        hi = cell[:, 3:6]
+        g = points.double() / self.dx - cell[:, :3]
         g = torch.minimum(torch.clamp(g, min=0.0), hi)
-        i0 = torch.minimum(torch.floor(g), torch.clamp(hi - 1, min=0)).long()
-        i1 = torch.minimum(i0 + 1, hi.long())
+        i0 = torch.minimum(torch.floor(g), cell[:, 6:]).long()
+        i1 = torch.minimum(i0 + 1, ints[:, :3])
         f = (g - i0).to(points.dtype)
         t = self.table.to(points.dtype)
-        # the 8 corners at once (corner c = (cx, cy, cz), cx slowest), with the factors and the sum of
-        # MeshCollider._lookup's loop: the same values in the same order, in a fixed number of launches
-        cx, cy, cz = _corner_bits(points.device)
-        ii = torch.stack([i0, i1], 1)  # (N, 2, 3)
+        # the 8 corners at once (corner c = (cx, cy, cz), cx slowest) as broadcast products over (N, 2, 2, 2): the
+        # factors (wx wy) wz of MeshCollider._lookup's loop and its corner_sum, the same values in the same order
+        ii = torch.stack([i0, i1], 1)  # (N, 2, 3): lower, upper corner
         ww = torch.stack([1 - f, f], 1)  # (N, 2, 3)
-        rows = (ii[:, cx, 0] * dims[:, 1:2] + ii[:, cy, 1]) * dims[:, 2:3] + ii[:, cz, 2]  # (N, 8)
-        w = ww[:, cx, 0] * ww[:, cy, 1] * ww[:, cz, 2]  # (N, 8): (wx wy) wz
-        terms = w[:, :, None] * t[rows + self.offset[scene][:, None]]  # (N, 8, 4)
-        out = terms[:, 0]
-        for c in range(1, 8):
-            out = out + terms[:, c]
-        lo, hi_pt = self.lo[scene].to(points), self.hi[scene].to(points)
-        outside = (torch.clamp(lo - points, min=0) + torch.clamp(points - hi_pt, min=0)).norm(dim=1)
-        return out[:, 0] + outside, unit_or_up(out[:, 1:])
-
-
-_CORNERS: dict[torch.device, tuple[Tensor, Tensor, Tensor]] = {}
-
-
-def _corner_bits(device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
-    """(8,) int64 each: the x, y and z bit of the 8 cell corners, x slowest (``MeshCollider._lookup``'s order)."""
-    if device not in _CORNERS:
-        c = torch.arange(8, device=device)
-        _CORNERS[device] = (c // 4, (c // 2) % 2, c % 2)
-    return _CORNERS[device]
+        dy, dz = ints[:, 3, None, None, None], ints[:, 4, None, None, None]  # (N, 1, 1, 1)
+        rows = (ii[:, :, None, None, 0] * dy + ii[:, None, :, None, 1]) * dz + ii[:, None, None, :, 2]  # (N, 2, 2, 2)
+        w = (ww[:, :, None, None, 0] * ww[:, None, :, None, 1] * ww[:, None, None, :, 2]).reshape(-1, 8)  # (N, 8)
+        rows = rows.reshape(-1, 8) + ints[:, 5:]  # (N, 8) rows of the stacked table
+        out = corner_sum(w[:, :, None] * t[rows])  # (N, 4)
+        box = self.box.to(points)[scene]  # (N, 6): the region boxes, lo then hi
+        return out[:, 0] + box_distance(points, box[:, :3], box[:, 3:]), unit_or_up(out[:, 1:])
 
 
 def _offsets(sizes: list[int], device: torch.device) -> Tensor:

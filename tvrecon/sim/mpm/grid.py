@@ -34,6 +34,7 @@ __all__ = [
     "shift_nodes",
     "shift_rows",
     "stencil_offsets",
+    "stencil_shifts",
 ]
 
 FIX_HINT = "reduce dt / hand speed, increase n_grid"
@@ -67,6 +68,14 @@ def stencil_offsets(device: torch.device, dtype: torch.dtype) -> Tensor:
     r = torch.arange(3, device=device)
     o = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(27, 3)
     return o.to(dtype)
+
+
+@functools.lru_cache(maxsize=64)
+def stencil_shifts(S0: int, S1: int, device: torch.device) -> Tensor:
+    """(27,) int64 node-axis offset of each stencil node (i, j, k), i slowest, from its particle's base node in a block
+    of node strides ``S0`` (i) and ``S1`` (j); kept per block shape, as a press steps the same block for a while."""
+    o = stencil_offsets(device, torch.int64)
+    return o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2]
 
 
 def shift_nodes(t: Tensor, s: int) -> Tensor:
@@ -170,13 +179,25 @@ def block_index(
         local = base - (lo if batch is None else lo[batch])  # (P, 3)
     if clamp:
         local = torch.clamp(local, min=_zeros3(local.device), max=_top_nodes(tuple(D), local.device))
-    lin = (local[:, 0] * D[1] + local[:, 1]) * D[2] + local[:, 2]
+    lin = (local * _strides(D[1], D[2], local.device)).sum(1)  # (i D1 + j) D2 + k
     if batch is not None:
         if block is not None:
-            lin = (lin.view(B, block) + torch.arange(B, device=lin.device)[:, None] * nb).view(-1)
+            lin = (lin.view(B, block) + _scene_starts(B, nb, lin.device)).view(-1)
         else:
             lin = lin + batch * nb
     return lo, lin
+
+
+@functools.lru_cache(maxsize=64)
+def _strides(D1: int, D2: int, device: torch.device) -> Tensor:
+    """(3,) int64 node strides of i, j and k in a block of dims (., D1, D2)."""
+    return torch.tensor([D1 * D2, D2, 1], dtype=torch.int64, device=device)
+
+
+@functools.lru_cache(maxsize=64)
+def _scene_starts(B: int, nb: int, device: torch.device) -> Tensor:
+    """(B, 1) int64 first node of each of B scene blocks of ``nb`` nodes."""
+    return torch.arange(B, device=device)[:, None] * nb
 
 
 @functools.lru_cache(maxsize=8)

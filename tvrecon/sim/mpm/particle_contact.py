@@ -40,7 +40,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import MeshStack
-from tvrecon.sim.mpm.grid import Stencil, stencil_offsets
+from tvrecon.sim.mpm.grid import Stencil, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
 
 __all__ = [
@@ -48,6 +48,7 @@ __all__ = [
     "MeshStackCache",
     "contact_velocity",
     "near_surface",
+    "normal_floor",
     "particle_contact_grid",
     "scene_slices",
     "stencil_nodes",
@@ -77,6 +78,13 @@ def scene_slices(batch: Tensor | None, B: int, block: int | None) -> list[slice 
     return [batch == b for b in range(B)]
 
 
+def normal_floor(phi: Tensor, dt: float, push_out: float = 0.0, push_cap: float = math.inf) -> Tensor:
+    """(K,) the least outward normal velocity that keeps particles at signed distance ``phi`` (K,) out of the body
+    this step: ``-phi / dt`` outside, ``min(-push_out phi / dt, push_cap)`` inside (:func:`contact_velocity`)."""
+    out = torch.clamp(-push_out * torch.clamp(phi, max=0.0) / dt, max=push_cap)  # (K,) >= 0
+    return out - torch.clamp(phi, min=0.0) / dt
+
+
 def contact_velocity(
     v: Tensor,
     phi: Tensor,
@@ -99,9 +107,7 @@ def contact_velocity(
         (K, 3) velocities.
     """
     vn = (v * n).sum(1)  # (K,)
-    out = torch.clamp(-push_out * torch.clamp(phi, max=0.0) / dt, max=push_cap)  # (K,) >= 0
-    floor_vn = out - torch.clamp(phi, min=0.0) / dt  # the least normal velocity that does not cross the surface
-    dvn = torch.clamp(floor_vn - vn, min=0.0)  # (K,) >= 0: normal velocity the body adds
+    dvn = torch.clamp(normal_floor(phi, dt, push_out, push_cap) - vn, min=0.0)  # (K,) >= 0: what the body adds
     if friction <= 0:
         return v + dvn[:, None] * n
     vt = v - vn[:, None] * n
@@ -248,10 +254,8 @@ def _near_stacked(
 def stencil_nodes(st: Stencil, particles: Tensor | None = None) -> Tensor:
     """(27, K) int64 block-grid index of the 27 stencil nodes (offsets (i, j, k), i slowest) of the K = P particles,
     or of the (K,) int64 ``particles`` only."""
-    S0, S1 = st.D[1] * st.D[2], st.D[2]
-    o = stencil_offsets(st.lin.device, torch.int64)  # (27, 3)
     lin = st.lin if particles is None else st.lin[particles]
-    return lin[None, :] + (o[:, 0] * S0 + o[:, 1] * S1 + o[:, 2])[:, None]
+    return lin[None, :] + stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)[:, None]
 
 
 def contact_passes(
@@ -283,16 +287,25 @@ def contact_passes(
         the corrected (N, 3) grid velocities and the (K, 3) collider force on each particle (sum over passes).
     """
     K = phi.shape[0]
-    total = torch.zeros_like(n)
+    # what the passes share (hoisted: each launch saved here is saved ITERATIONS times a step on a GPU)
+    held = None if a is None or hv is None else (1.0 - a) * hv  # (K, 3): the hand's part of paper eq. 8
+    scale = m / dt if a is None else a * m / dt  # (K, 1): force per velocity change, alpha_p J_p / (dt dv_p)
+    frictionless = friction <= 0
+    if frictionless:  # only the normal velocity changes (contact_velocity's v_n' - v_n along n)
+        floor_vn = normal_floor(phi, dt, push_out, push_cap)  # (K,)
+        pull = scale * n  # (K, 3): the force of a unit normal velocity change
+    share = share.view(27, K, 1)
+    total = None
     for _ in range(ITERATIONS):
         v = (w * gv[flat].reshape(27, K, 3)).sum(0)  # (K, 3) sum_i w_ip v_i
-        if a is not None and hv is not None:
-            v = a * v + (1.0 - a) * hv  # paper eq. 8 (eq:particle_v)
-        f = m * (contact_velocity(v, phi, n, dt, friction, push_out, push_cap) - v) / dt  # (K, 3)
-        if a is not None:
-            f = a * f
-        gv = gv.index_add(0, flat, share * f.repeat(27, 1))  # v_i += sum_p w_ip J_p / m_i
-        total = total + f
+        if held is not None:
+            v = torch.addcmul(held, a, v)  # paper eq. 8 (eq:particle_v): alpha_p v + (1 - alpha_p) v_r
+        if frictionless:
+            f = torch.clamp(floor_vn - (v * n).sum(1), min=0.0)[:, None] * pull  # (K, 3)
+        else:  # Coulomb friction: contact_velocity's tangential branch too
+            f = scale * (contact_velocity(v, phi, n, dt, friction, push_out, push_cap) - v)
+        gv = gv.index_add(0, flat, (share * f).view(27 * K, 3))  # v_i += sum_p w_ip J_p / m_i
+        total = f if total is None else total + f
     return gv, total
 
 
@@ -349,7 +362,8 @@ def particle_contact_grid(
     if K:
         idx = stencil_nodes(st, cand)  # (27, K)
         gm = node_mass.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
-        inv_m = torch.where(gm > 0, 1.0 / torch.where(gm > 0, gm, torch.ones_like(gm)), torch.zeros_like(gm))
+        has_mass = gm > 0
+        inv_m = torch.where(has_mass, torch.reciprocal(torch.where(has_mass, gm, 1.0)), 0.0)
         w = st.w[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
         share = (w * (dt * inv_m)[:, :, None]).reshape(-1, 1)  # (27 K, 1): w_ip dt / m_i
         flat = idx.reshape(-1)

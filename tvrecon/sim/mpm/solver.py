@@ -143,7 +143,7 @@ class MLSMPM:
         # reads ``pending_bounds`` (9,) with its own host read and gives the values back (:meth:`set_next_bounds`)
         self.pending_bounds: Tensor | None = None
         self._next_layout: _NextLayout | None = None
-        self._consts: dict[tuple[torch.dtype, torch.device], tuple[Tensor, Tensor, Tensor]] = {}
+        self._consts: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
         self._scenes_of: tuple[Tensor, int, int, int | None] | None = None  # (batch, its version, B, block)
         self._kernels: CompiledKernels | None = compiled_kernels() if compile else None
         self._fields = ColliderFields()  # the compiled step's collider sdf on the block grid, kept between steps
@@ -174,6 +174,15 @@ class MLSMPM:
             o_aug_t = torch.cat([torch.ones(27, 1, dtype=dtype, device=device), o], 1)  # (27, 4): [1, o]
             self._consts[key] = (o, o_aug_t, o.to(torch.int64))
         return self._consts[key]
+
+    def _spline_constants(self, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+        """(1, 3, 1) shift s_k, factor a_k and offset c_k of the quadratic B-spline weight c_k + a_k (f - s_k)^2 of the
+        node k = 0, 1, 2 (``_stencil``)."""
+        key = ("spline", dtype, device)
+        if key not in self._consts:
+            rows = torch.tensor([[1.5, 1.0, 0.5], [0.5, -1.0, 0.5], [0.0, 0.75, 0.0]], dtype=dtype, device=device)
+            self._consts[key] = tuple(r.view(1, 3, 1) for r in rows)  # type: ignore[assignment]
+        return self._consts[key]  # type: ignore[return-value]
 
     def _scenes(self, batch: Tensor | None) -> tuple[int, int | None]:
         """(B, block) of a state's ``batch``: the scene count and, when ``batch`` is the contiguous layout
@@ -403,7 +412,11 @@ class MLSMPM:
         fx = Xg - base_f  # (P, 3) in [0.5, 1.5)
         # channel-first layouts (..., P) below: every big elementwise op runs over contiguous particle rows
         fxt = fx.T.contiguous()  # (3, P)
-        wa = torch.stack([0.5 * (1.5 - fxt) ** 2, 0.75 - (fxt - 1.0) ** 2, 0.5 * (fxt - 0.5) ** 2], 1)  # (axis, k, P)
+        # quadratic B-spline 0.5 (1.5 - f)^2, 0.75 - (f - 1)^2, 0.5 (f - 0.5)^2 of the three nodes k along each axis,
+        # as c_k + a_k (f - s_k)^2 in three launches (the same roundings: the squares, 0.5 x, 0.75 - x are exact ops)
+        shift, coef, bias = self._spline_constants(fx.dtype, fx.device)  # (1, 3, 1) each
+        u = fxt[:, None, :] - shift  # (axis, k, P)
+        wa = torch.addcmul(bias, u * u, coef)  # (axis, k, P)
         w = (wa[0][:, None, None] * wa[1][None, :, None] * wa[2][None, None, :]).reshape(27, P)  # o = (i, j, k)
         return Stencil(fx, w, lo, lin, D, B * D[0] * D[1] * D[2], self._chunk(P, x.device))
 
@@ -512,9 +525,9 @@ class MLSMPM:
             v_new = v_pic
         else:
             hv = torch.zeros(3, dtype=dtype, device=device) if hand_velocity is None else hand_velocity
-            v_new = alpha[:, None] * v_pic + (1.0 - alpha[:, None]) * hv  # paper eq. 8 (eq:particle_v)
-        x_new = x + dt * v_new  # paper eq. 10 (eq:particle_x)
-        F_new = F + dt * matmul3(C_new, F)  # paper eq. 11 (eq:particle_f): (I + dt C) F
+            v_new = torch.addcmul((1.0 - alpha[:, None]) * hv, alpha[:, None], v_pic)  # paper eq. 8 (eq:particle_v)
+        x_new = torch.add(x, v_new, alpha=dt)  # paper eq. 10 (eq:particle_x): x + dt v
+        F_new = torch.add(F, matmul3(C_new, F), alpha=dt)  # paper eq. 11 (eq:particle_f): (I + dt C) F
         return replace(state, x=x_new, v=v_new, C=C_new, F=F_new)
 
     def last_particle_force(self, mass: Tensor, source: tuple[Transfer | None, Tensor | None] | None = None) -> Tensor:
