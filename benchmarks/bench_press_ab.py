@@ -1,7 +1,7 @@
 """Paper-preset touches pressed by an earlier commit's simulator and by the working tree, in one process (not a test).
 
     OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_ab.py --old REV [--touches 4]
-        [--first 1] [--stride 3] [--eager] [--contact grid|particle]
+        [--first 1] [--stride 3] [--eager] [--contact grid|particle] [--preset cls_paper]
 
 ``git archive REV tvrecon`` is unpacked into a temporary folder as the package ``tvrecon_old`` (imports renamed), so
 both versions run side by side; each touch (classes ``first + stride * i`` of ``available_classes()``, seeded
@@ -10,7 +10,9 @@ thread, with ``compile=True`` unless ``--eager``. Prints per touch the CPU secon
 differences (image in grid cells, relative force; whether the whole reading is bit-identical: :func:`identical`), then
 the median and total ratio. Used for each step of issue 13
 step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine. ``--contact`` sets
-``PressConfig.contact`` of both (the old revision must know the field).
+``PressConfig.contact`` of both (the old revision must know the field). ``--preset NAME`` takes the pad, the press
+and the touch policy of that data preset instead (e.g. ``cls_paper``: the authors' 61x61x10 pad, the object at 0.16 of
+the domain, the paper's touches through its centre 12% deep), its ``press.compile`` aside.
 """
 
 from __future__ import annotations
@@ -29,10 +31,13 @@ import warnings
 from pathlib import Path
 
 import torch
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tvrecon.data.presets import compose_preset  # noqa: E402
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
 from tvrecon.data.touches import sample_touches  # noqa: E402
 from tvrecon.sim.mpm.state import CONTACT_MODES  # noqa: E402
@@ -70,30 +75,39 @@ def main() -> None:
     parser.add_argument("--stride", type=int, default=3, help="class index step between touches")
     parser.add_argument("--eager", action="store_true", help="compare the eager paths (default: compile=True)")
     parser.add_argument("--contact", choices=CONTACT_MODES, default=None, help="PressConfig.contact of both")
+    parser.add_argument("--preset", default=None, help="a data preset's pad, press and touches (e.g. cls_paper)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     comp = not args.eager
     with tempfile.TemporaryDirectory() as tmp:
         op = import_old(args.old, Path(tmp))
         kw = {} if args.contact is None else {"contact": args.contact}
-        new = EIPSimulator(SensorConfig(resolution=(64, 64), layers=6), PressConfig(n_grid=128, **kw), compile=comp)
+        sensor_kw, press_kw, policy = {"resolution": (64, 64), "layers": 6}, {"n_grid": 128, **kw}, None
+        if args.preset is not None:
+            cfg = compose_preset(args.preset, ["cache_dir=null"])
+            sensor_kw = OmegaConf.to_container(cfg.sensor)
+            sensor_kw["resolution"] = tuple(sensor_kw["resolution"])
+            press_kw = {k: v for k, v in OmegaConf.to_container(cfg.press).items() if k != "compile"} | kw
+            policy = instantiate(cfg.touch)
+        new = EIPSimulator(SensorConfig(**sensor_kw), PressConfig(**press_kw), compile=comp)
         # SensorConfig left tvrecon.sim.press in the layout of issue 25
         old_pad = importlib.import_module("tvrecon_old.sim.sensor.pad")
         old_sensor = getattr(op, "SensorConfig", None) or old_pad.SensorConfig
-        old = op.EIPSimulator(old_sensor(resolution=(64, 64), layers=6), op.PressConfig(n_grid=128, **kw), compile=comp)
+        old = op.EIPSimulator(old_sensor(**sensor_kw), op.PressConfig(**press_kw), compile=comp)
         classes = available_classes()
         jobs = []
         for i in range(args.touches):
             name = classes[(args.first + args.stride * i) % len(classes)]
             mesh = make_shape(name, 0)
-            t = sample_touches(mesh, 1, seed=i, sim=new)
+            t = sample_touches(mesh, 1, seed=i, policy=policy, sim=new)
             jobs.append((name, mesh, t.positions[0], t.directions[0], t.strengths[0]))
         warnings.simplefilter("ignore")
         for sim in (old, new):  # warm-up (and compile)
             sim.press(*jobs[0][1:4], **jobs[0][4])
         print(
             f"torch {torch.__version__}, 1 thread, {'compiled' if comp else 'eager'}; old = {args.old}; "
-            f"contact {args.contact or 'default'}"
+            f"contact {args.contact or 'default'}; pad, press and touches of "
+            f"{args.preset or 'the 64x64x6 pad on 128^3 (cone touches)'}"
         )
         ratios, t_old, t_new, differ = [], 0.0, 0.0, 0
         for k, (name, mesh, pos, d, kw) in enumerate(jobs):

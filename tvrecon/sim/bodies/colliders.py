@@ -24,6 +24,7 @@ __all__ = [
     "MeshCollider",
     "OPEN_SHELL_CELLS",
     "unit_or_up",
+    "unit_toward",
 ]
 
 #: Half-thickness, in grid cells, of the shell an open (non-watertight) mesh is given by ``MeshCollider`` without
@@ -390,5 +391,11 @@ def unit_or_up(n: Tensor) -> Tensor:
     up = _UP.get(key)
     if up is None:
         up = _UP.setdefault(key, torch.tensor([0.0, 0.0, 1.0], dtype=n.dtype, device=n.device))
+    return unit_toward(n, up)
+
+
+def unit_toward(n: Tensor, up: Tensor) -> Tensor:
+    """(N, 3) vectors scaled to unit length; the (3,) ``up`` where a vector is (near) zero (or not finite):
+    :func:`unit_or_up` with its +z given (a pure function, for compiled kernels)."""
     nn = n.norm(dim=1, keepdim=True)
     return torch.where(nn > 1e-12, n / torch.clamp(nn, min=1e-12), up)

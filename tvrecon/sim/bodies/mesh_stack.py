@@ -16,9 +16,9 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from tvrecon.sim.bodies.colliders import MeshCollider, box_distance, corner_sum, unit_or_up
+from tvrecon.sim.bodies.colliders import MeshCollider, box_distance, corner_sum, unit_toward
 
-__all__ = ["MeshStack"]
+__all__ = ["MeshStack", "near_blocks", "stacked_sdf_normal"]
 
 
 class MeshStack:
@@ -57,6 +57,8 @@ class MeshStack:
         top = self.dims - 1
         self.cell_f64 = torch.cat([self.lo_index, top.double(), torch.clamp(top - 1, min=0).double()], 1)  # (B, 9)
         self.cell_i64 = torch.cat([top, self.dims[:, 1:], self.offset[:, None]], 1)  # (B, 6)
+        self.lo_index32 = self.lo_index.to(torch.float32)  # (B, 3): near's cell origin
+        self._tables: dict[torch.dtype, tuple[Tensor, Tensor, Tensor, Tensor, Tensor]] = {}
 
     def matches(self, colliders: Sequence[object], device: torch.device) -> bool:
         """Whether this stack was built from exactly these collider objects, in this order, on ``device``."""
@@ -75,7 +77,7 @@ class MeshStack:
         arithmetic, the same result, ~3x faster on the CPU for a paper batch."""
         if block is not None and points.shape[0] == block * len(self.colliders):
             return self._near_blocks(points, block, reach)
-        g = points.float() / self.dx - self.lo_index.to(torch.float32)[scene]
+        g = points.float() / self.dx - self.lo_index32[scene]
         i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), self.cmin_dims[scene] - 1)
         dims = self.cmin_dims[scene]
         least = self.cmin[self.cmin_offset[scene] + (i0[:, 0] * dims[:, 1] + i0[:, 1]) * dims[:, 2] + i0[:, 2]]
@@ -83,37 +85,70 @@ class MeshStack:
 
     def _near_blocks(self, points: Tensor, block: int, reach: float) -> Tensor:
         """:meth:`near` of B contiguous blocks of ``block`` points: (B, block) views instead of (N,) gathers."""
-        B = len(self.colliders)
-        g = points.float().view(B, block, 3) / self.dx - self.lo_index.to(torch.float32)[:, None, :]
-        i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), (self.cmin_dims - 1)[:, None, :])
-        d = self.cmin_dims[:, None, :]
-        flat = (i0[..., 0] * d[..., 1] + i0[..., 1]) * d[..., 2] + i0[..., 2] + self.cmin_offset[:, None]
-        least = self.cmin[flat.view(-1)]
-        return least - 1e-5 * least.abs() - 1e-3 * self.dx < reach
+        pts = points.view(len(self.colliders), block, 3)
+        return near_blocks(pts, self.lo_index32, self.cmin_dims, self.cmin_offset, self.cmin, self.dx, reach)
 
     def sdf_normal(self, points: Tensor, scene: Tensor) -> tuple[Tensor, Tensor]:
         """(N, 3) points of the (N,) int64 scenes -> their (N,) signed distance and (N, 3) unit outward normal in their
         own scene's collider: ``MeshCollider.sdf_normal`` per point, one trilinear lookup for all."""
-        cell = self.cell_f64[scene]  # (N, 9): lo_index, the table's top node, the top cell (float64)
-        ints = self.cell_i64[scene]  # (N, 6): the top node, dims Y and Z, the first row of the scene's table (int64)
-        hi = cell[:, 3:6]
-        g = points.double() / self.dx - cell[:, :3]
-        g = torch.minimum(torch.clamp(g, min=0.0), hi)
-        i0 = torch.minimum(torch.floor(g), cell[:, 6:]).long()
-        i1 = torch.minimum(i0 + 1, ints[:, :3])
-        f = (g - i0).to(points.dtype)
-        t = self.table.to(points.dtype)
-        # the 8 corners at once (corner c = (cx, cy, cz), cx slowest) as broadcast products over (N, 2, 2, 2): the
-        # factors (wx wy) wz of MeshCollider._lookup's loop and its corner_sum, the same values in the same order
-        ii = torch.stack([i0, i1], 1)  # (N, 2, 3): lower, upper corner
-        ww = torch.stack([1 - f, f], 1)  # (N, 2, 3)
-        dy, dz = ints[:, 3, None, None, None], ints[:, 4, None, None, None]  # (N, 1, 1, 1)
-        rows = (ii[:, :, None, None, 0] * dy + ii[:, None, :, None, 1]) * dz + ii[:, None, None, :, 2]  # (N, 2, 2, 2)
-        w = (ww[:, :, None, None, 0] * ww[:, None, :, None, 1] * ww[:, None, None, :, 2]).reshape(-1, 8)  # (N, 8)
-        rows = rows.reshape(-1, 8) + ints[:, 5:]  # (N, 8) rows of the stacked table
-        out = corner_sum(w[:, :, None] * t[rows])  # (N, 4)
-        box = self.box.to(points)[scene]  # (N, 6): the region boxes, lo then hi
-        return out[:, 0] + box_distance(points, box[:, :3], box[:, 3:]), unit_or_up(out[:, 1:])
+        return stacked_sdf_normal(points, scene, *self.lookup_tables(points.dtype), self.dx)
+
+    def lookup_tables(self, dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """The arguments of :func:`stacked_sdf_normal` after ``points, scene`` for points of ``dtype``: the (B, 9)
+        float64 and (B, 6) int64 per-scene cell values, the (sum XYZ, 4) table and the (B, 6) boxes in ``dtype``, the
+        (3,) +z of ``unit_or_up`` (kept per dtype: no conversion per step)."""
+        tabs = self._tables.get(dtype)
+        if tabs is None:
+            up = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=self.table.device)
+            tabs = self._tables[dtype] = (self.cell_f64, self.cell_i64, self.table.to(dtype), self.box.to(dtype), up)
+        return tabs
+
+
+def near_blocks(
+    points: Tensor, lo_index: Tensor, cmin_dims: Tensor, cmin_offset: Tensor, cmin: Tensor, dx: float, reach: float
+) -> Tensor:
+    """:meth:`MeshStack.near` of B contiguous blocks of points, each block in its own scene's table (a pure function:
+    the compiled particle contact runs it as one kernel). points: (B, M, 3); lo_index: (B, 3) float32; cmin_dims:
+    (B, 3) int64; cmin_offset: (B,) int64; cmin: the stacked cell minima. Returns (B M,) bool."""
+    g = points.float() / dx - lo_index[:, None, :]
+    i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), (cmin_dims - 1)[:, None, :])
+    d = cmin_dims[:, None, :]
+    flat = (i0[..., 0] * d[..., 1] + i0[..., 1]) * d[..., 2] + i0[..., 2] + cmin_offset[:, None]
+    least = cmin[flat.reshape(-1)]
+    return least - 1e-5 * least.abs() - 1e-3 * dx < reach
+
+
+def stacked_sdf_normal(
+    points: Tensor,
+    scene: Tensor,
+    cell_f64: Tensor,
+    cell_i64: Tensor,
+    table: Tensor,
+    box: Tensor,
+    up: Tensor,
+    dx: float,
+) -> tuple[Tensor, Tensor]:
+    """:meth:`MeshStack.sdf_normal` from its tables (:meth:`MeshStack.lookup_tables`; a pure function: the compiled
+    particle contact runs it inside its kernel). points: (N, 3); scene: (N,) int64. Returns (N,) sdf, (N, 3) normals."""
+    cell = cell_f64[scene]  # (N, 9): lo_index, the table's top node, the top cell (float64)
+    ints = cell_i64[scene]  # (N, 6): the top node, dims Y and Z, the first row of the scene's table (int64)
+    hi = cell[:, 3:6]
+    g = points.double() / dx - cell[:, :3]
+    g = torch.minimum(torch.clamp(g, min=0.0), hi)
+    i0 = torch.minimum(torch.floor(g), cell[:, 6:]).long()
+    i1 = torch.minimum(i0 + 1, ints[:, :3])
+    f = (g - i0).to(points.dtype)
+    # the 8 corners at once (corner c = (cx, cy, cz), cx slowest) as broadcast products over (N, 2, 2, 2): the
+    # factors (wx wy) wz of MeshCollider._lookup's loop and its corner_sum, the same values in the same order
+    ii = torch.stack([i0, i1], 1)  # (N, 2, 3): lower, upper corner
+    ww = torch.stack([1 - f, f], 1)  # (N, 2, 3)
+    dy, dz = ints[:, 3, None, None, None], ints[:, 4, None, None, None]  # (N, 1, 1, 1)
+    rows = (ii[:, :, None, None, 0] * dy + ii[:, None, :, None, 1]) * dz + ii[:, None, None, :, 2]  # (N, 2, 2, 2)
+    w = (ww[:, :, None, None, 0] * ww[:, None, :, None, 1] * ww[:, None, None, :, 2]).reshape(-1, 8)  # (N, 8)
+    rows = rows.reshape(-1, 8) + ints[:, 5:]  # (N, 8) rows of the stacked table
+    out = corner_sum(w[:, :, None] * table[rows])  # (N, 4)
+    bx = box[scene]  # (N, 6): the region boxes, lo then hi
+    return out[:, 0] + box_distance(points, bx[:, :3], bx[:, 3:]), unit_toward(out[:, 1:], up)
 
 
 def _offsets(sizes: list[int], device: torch.device) -> Tensor:

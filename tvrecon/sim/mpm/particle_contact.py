@@ -39,18 +39,21 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
-from tvrecon.sim.bodies.mesh_stack import MeshStack
+from tvrecon.sim.bodies.mesh_stack import MeshStack, stacked_sdf_normal
 from tvrecon.sim.mpm.grid import Stencil, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
 
 __all__ = [
     "contact_passes",
+    "contact_setup",
     "MeshStackCache",
+    "mesh_contact",
     "contact_velocity",
     "near_surface",
     "normal_floor",
     "particle_contact_grid",
     "scene_slices",
+    "stacked_candidates",
     "stencil_nodes",
 ]
 
@@ -235,20 +238,41 @@ def _near_stacked(
     """:func:`near_surface` of B mesh colliders in one pass: one prefilter of every particle in its scene's table, one
     compaction (the step's only host sync here, skipped while the cache's kept list still covers ``reach``), one
     lookup; the particles of the prefilter beyond ``reach`` keep a distance of +inf instead of a second compaction."""
-    stack = cache.get(colliders, x.device)
-    kept = cache.candidates(x, batch, reach)
-    if kept is None:
-        scene = torch.zeros(x.shape[0], dtype=torch.int64, device=x.device) if batch is None else batch
-        wide = reach + cache.skin
-        cand = torch.nonzero(stack.near(x.detach(), scene, wide, block)).flatten()  # (K,)
-        scene = scene[cand]
-        cache.keep(cand, scene, x, batch, wide)
-    else:
-        cand, scene = kept  # no particle has moved past the skin since the search: the same superset
+    stack, cand, scene = stacked_candidates(x, colliders, batch, reach, cache, block)
     phi, n = stack.sdf_normal(x[cand], scene)
     far = ~(phi.detach() < reach)  # NaN too, as the loop's compaction drops it
     phi = torch.where(far, torch.full_like(phi, math.inf), phi)
     return cand, scene, phi.to(x.dtype), n.to(x.dtype)
+
+
+def stacked_candidates(
+    x: Tensor,
+    colliders: Sequence[MeshCollider],
+    batch: Tensor | None,
+    reach: float,
+    cache: MeshStackCache,
+    block: int | None = None,
+    kernels: Callable[..., Tensor] | None = None,
+) -> tuple[MeshStack, Tensor, Tensor]:
+    """The stacked colliders and the (K,) int64 particles (and their (K,) scenes) that may be within ``reach``: the
+    cache's kept list while it still covers ``reach``, else one prefilter of every particle and one compaction.
+    ``kernels``: a compiled backend whose ``"near"`` kernel runs the prefilter of a press's contiguous blocks."""
+    stack = cache.get(colliders, x.device)
+    kept = cache.candidates(x, batch, reach)
+    if kept is not None:
+        return stack, *kept  # no particle has moved past the skin since the search: the same superset
+    scene = torch.zeros(x.shape[0], dtype=torch.int64, device=x.device) if batch is None else batch
+    wide = reach + cache.skin
+    B = len(colliders)
+    if kernels is not None and block is not None and x.shape[0] == block * B:
+        pts = x.detach().view(B, block, 3)
+        mask = kernels("near", pts, stack.lo_index32, stack.cmin_dims, stack.cmin_offset, stack.cmin, stack.dx, wide)
+    else:
+        mask = stack.near(x.detach(), scene, wide, block)
+    cand = torch.nonzero(mask).flatten()  # (K,)
+    scene = scene[cand]
+    cache.keep(cand, scene, x, batch, wide)
+    return stack, cand, scene
 
 
 def stencil_nodes(st: Stencil, particles: Tensor | None = None) -> Tensor:
@@ -348,32 +372,102 @@ def particle_contact_grid(
     iterations); what the last one leaves lets a particle sink a little, corrected at the next steps.
 
     ``kernels``: the compiled backend's ``CompiledKernels``, whose ``"contact"`` kernel runs :func:`contact_passes`
-    fused (float32 round-off apart); None: eager. ``stack``: the solver's :class:`MeshStackCache`, so that mesh
-    colliders are searched in one pass over all scenes (None: scene by scene). The eager step passes
+    fused (float32 round-off apart), and with stacked mesh colliders its ``"near"`` and ``"mesh_contact"`` kernels
+    the prefilter and the rest (:func:`mesh_contact`); None: eager. ``stack``: the solver's :class:`MeshStackCache`,
+    so that mesh colliders are searched in one pass over all scenes (None: scene by scene). The eager step passes
     ``node_mass`` with its autograd graph (the impulse share ``w_ip J_p / m_i`` depends on the positions through
     ``m_i`` too); the no-grad compiled step passes the detached grid mass of its transfer.
     """
     P = state.x.shape[0]
     mu_f = friction
+    if kernels is not None and stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
+        # compiled: the prefilter of a press's blocks, the lookup and set-up, the passes: three kernels
+        mesh, cand, scene = stacked_candidates(state.x, colliders, state.batch, dx, stack, block, kernels)
+        K = cand.numel()
+        total = gv.new_zeros(K, 3)
+        if K:
+            hv = hand_velocity if hand_velocity is None or hand_velocity.dim() == 2 else hand_velocity[None]
+            shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
+            prep = kernels(
+                "mesh_contact", gv, node_mass, st.lin, st.w, shifts, cand, scene, state.x, state.mass, alpha, hv,
+                *mesh.lookup_tables(state.x.dtype), dx, dt,
+            )
+            gv, total = kernels("contact", gv, *prep, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
+        force = gv.new_zeros(B, 3).index_add(0, scene, total)
+        return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total.detach())
     slices = scene_slices(state.batch, B, block)
     cand, scene, phi, n = near_surface(state.x, colliders, slices, dx, state.batch, stack, block)
     K = cand.numel()
     total = gv.new_zeros(K, 3)
     if K:
-        idx = stencil_nodes(st, cand)  # (27, K)
-        gm = node_mass.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
-        has_mass = gm > 0
-        inv_m = torch.where(has_mass, torch.reciprocal(torch.where(has_mass, gm, 1.0)), 0.0)
-        w = st.w[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
-        share = (w * (dt * inv_m)[:, :, None]).reshape(-1, 1)  # (27 K, 1): w_ip dt / m_i
-        flat = idx.reshape(-1)
-        m = state.mass[cand, None].to(gv.dtype)  # (K, 1)
-        a = hv = None
-        if alpha is not None:
-            a = alpha[cand, None]  # (K, 1)
-            hv = torch.zeros(3, dtype=gv.dtype, device=gv.device) if hand_velocity is None else hand_velocity
-            hv = (hv[cand] if hv.dim() == 2 else hv.expand(K, 3)).contiguous()  # (K, 3)
-        args = (gv, flat, w, share, m, a, hv, phi, n, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
+        shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
+        setup = contact_setup(gv, node_mass, st.lin, st.w, shifts, cand, state.mass, alpha, hand_velocity, dt)
+        args = (gv, *setup, phi, n, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
         gv, total = contact_passes(*args) if kernels is None else kernels("contact", *args)
     force = gv.new_zeros(B, 3).index_add(0, scene, total)
     return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total.detach())
+
+
+def contact_setup(
+    gv: Tensor,
+    node_mass: Tensor,
+    lin: Tensor,
+    w_all: Tensor,
+    shifts: Tensor,
+    cand: Tensor,
+    mass: Tensor,
+    alpha: Tensor | None,
+    hand_velocity: Tensor | None,
+    dt: float,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None, Tensor | None]:
+    """What :func:`contact_passes` needs of the K particles ``cand``, after ``gv``: their (27 K,) stencil nodes, (27,
+    K, 1) weights, (27 K, 1) shares ``w_ip dt / m_i``, (K, 1) masses, (K, 1) alpha and (K, 3) hand velocity (None
+    without ``alpha``). lin: (P,) base node; w_all: (27, P) weights; shifts: the (27,) stencil offsets
+    (:func:`tvrecon.sim.mpm.grid.stencil_shifts`); node_mass: (N,) grid mass; mass, alpha: (P,); hand_velocity: (3,),
+    (1, 3) or (P, 3) or None."""
+    K = cand.shape[0]
+    idx = lin[cand][None, :] + shifts[:, None]  # (27, K): stencil_nodes of the candidates
+    gm = node_mass.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
+    has_mass = gm > 0
+    inv_m = torch.where(has_mass, torch.reciprocal(torch.where(has_mass, gm, 1.0)), 0.0)
+    w = w_all[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
+    share = (w * (dt * inv_m)[:, :, None]).reshape(-1, 1)  # (27 K, 1): w_ip dt / m_i
+    m = mass[cand, None].to(gv.dtype)  # (K, 1)
+    a = hv = None
+    if alpha is not None:
+        a = alpha[cand, None]  # (K, 1)
+        hv = torch.zeros(1, 3, dtype=gv.dtype, device=gv.device) if hand_velocity is None else hand_velocity
+        hv = hv.reshape(-1, 3)  # (P, 3), or (1, 3): one for all
+        hv = (hv.expand(K, 3) if hv.shape[0] == 1 else hv[cand]).contiguous()  # (K, 3)
+    return idx.reshape(-1), w, share, m, a, hv
+
+
+def mesh_contact(
+    gv: Tensor,
+    node_mass: Tensor,
+    lin: Tensor,
+    w_all: Tensor,
+    shifts: Tensor,
+    cand: Tensor,
+    scene: Tensor,
+    x: Tensor,
+    mass: Tensor,
+    alpha: Tensor | None,
+    hand_velocity: Tensor | None,
+    cell_f64: Tensor,
+    cell_i64: Tensor,
+    table: Tensor,
+    box: Tensor,
+    up: Tensor,
+    dx: float,
+    dt: float,
+) -> tuple[Tensor, ...]:
+    """Everything :func:`contact_passes` needs of the K candidates ``cand`` (of the (K,) ``scene``) with stacked mesh
+    colliders, after the search, as one function (the compiled step runs it as one kernel, ``"mesh_contact"``, and
+    the passes as another: one kernel of both was measured ~2x slower with dynamic shapes): their sdf and normals
+    (:func:`~tvrecon.sim.bodies.mesh_stack.stacked_sdf_normal` from ``MeshStack.lookup_tables``; +inf beyond the reach
+    of one cell ``dx``) and :func:`contact_setup`. Returns ``contact_setup``'s six values, then the (K,) sdf and (K,
+    3) normals, as :func:`particle_contact_grid`'s eager steps compute them (to round-off)."""
+    phi, n = stacked_sdf_normal(x[cand], scene, cell_f64, cell_i64, table, box, up, dx)
+    phi = torch.where(phi < dx, phi, math.inf)  # beyond the reach (or NaN): no contact, exactly
+    return (*contact_setup(gv, node_mass, lin, w_all, shifts, cand, mass, alpha, hand_velocity, dt), phi, n)

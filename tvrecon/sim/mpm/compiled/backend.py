@@ -11,6 +11,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
+from tvrecon.sim.bodies.mesh_stack import near_blocks
 from tvrecon.sim.mpm.compiled.grid import grid_collide
 from tvrecon.sim.mpm.compiled.kernels import (
     block_index,
@@ -20,16 +21,16 @@ from tvrecon.sim.mpm.compiled.kernels import (
     share_force,
     stencil_weights,
 )
-from tvrecon.sim.mpm.particle_contact import contact_passes
+from tvrecon.sim.mpm.particle_contact import contact_passes, mesh_contact
 
 __all__ = ["CompileFailed", "CompiledKernels", "compiled_kernels"]
 
 log = logging.getLogger(__name__)
 
-# per kernel, the dimension of each positional argument that varies (the particle or node count; None: not a tensor
-# or fixed). Only these are marked dynamic: ``dynamic=True`` would also make the 3s and 9s symbolic, and inductor
-# then emits scalar (unvectorized) loops with symbolic strides.
-_DYN_DIMS: dict[str, tuple[int | None, ...]] = {
+# per kernel, the dimension(s) of each positional argument that vary (the particle, node, candidate or scene count;
+# None: not a tensor or fixed). Only these are marked dynamic: ``dynamic=True`` would also make the 3s and 9s
+# symbolic, and inductor then emits scalar (unvectorized) loops with symbolic strides.
+_DYN_DIMS: dict[str, tuple[int | tuple[int, ...] | None, ...]] = {
     "stencil": (1,),
     "index": (1, 1),
     "polar": (1,),
@@ -38,6 +39,8 @@ _DYN_DIMS: dict[str, tuple[int | None, ...]] = {
     "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
     "share": (0, None, 0, 1, 0),
     "contact": (0, 0, 1, 0, 0, 0, 0, 0, 0),
+    "near": ((0, 1), 0, 0, 0, 0),
+    "mesh_contact": (0, 0, 0, 1, None, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),  # cand, scene: 5, 6
 }
 
 
@@ -70,14 +73,19 @@ class CompiledKernels:
                 ("g2p", g2p_update),
                 ("share", share_force),
                 ("contact", contact_passes),
+                ("near", near_blocks),
+                ("mesh_contact", mesh_contact),
             )
         }
 
     def __call__(self, name: str, *args):
         try:
-            for a, d in zip(args, _DYN_DIMS[name]):
-                if d is not None and isinstance(a, Tensor) and a.dim() > d:
-                    torch._dynamo.maybe_mark_dynamic(a, d)
+            for a, dims in zip(args, _DYN_DIMS[name]):
+                if dims is None or not isinstance(a, Tensor):
+                    continue
+                for d in (dims,) if isinstance(dims, int) else dims:
+                    if a.dim() > d:
+                        torch._dynamo.maybe_mark_dynamic(a, d)
             return self._fns[name](*args)
         except Exception as e:  # noqa: BLE001 - any compile/runtime failure -> eager fallback
             msg = f"torch.compile of the MLS-MPM kernel {name!r} failed ({type(e).__name__}: {e}); using the eager step"
