@@ -1,7 +1,7 @@
 """What ``compile="auto"`` costs and saves: ``python -m tvrecon.data.generate`` eager and compiled, cold and warm
 compile cache, at two job sizes; the break-even it implies and what auto chooses for the whole preset (not a test).
 
-    python benchmarks/bench_compile_auto.py [--preset small] [--items 3 8] [--out results.json]
+    python benchmarks/bench_compile_auto.py [--preset small] [--items 3 8] [--out results.json] [--compiled-only]
 
 Five ``generate`` processes, one worker each (one torch thread), every one on an empty data cache so that every item
 is simulated: eager with ``--items`` A and B objects; compiled with A objects on an empty compile cache (cold), then
@@ -12,6 +12,9 @@ graphs dynamo compiled (the same count at A and B objects: no recompiles after t
 - the compile's fixed cost, cold and warm: a compiled run's CPU-s minus an eager run of the same touches, plus the
   touches' saving; and the break-even touches (fixed cost / saving per touch) that ``AUTO_MIN_TOUCHES_*`` round
   (``tvrecon/sim/mpm/compiled/policy.py``).
+
+``--compiled-only`` runs the three compiled processes alone and prints the compiled marginal CPU-s per touch (the
+eager runs of the authors' pad cost ~10 CPU-s a touch).
 
 Ratios from one invocation are comparable; absolute seconds depend on the machine's load.
 """
@@ -77,6 +80,7 @@ def main() -> None:
     parser.add_argument("--preset", default="small", help="data preset (configs/data)")
     parser.add_argument("--items", type=int, nargs=2, default=(3, 8), metavar=("A", "B"), help="objects per run")
     parser.add_argument("--out", type=Path, default=None, help="write the runs and figures as JSON")
+    parser.add_argument("--compiled-only", action="store_true", help="skip the eager runs")
     args = parser.parse_args()
     a, b = args.items
     env = {**os.environ, "PROJECT_ROOT": str(ROOT), "OMP_NUM_THREADS": "1", "TORCHINDUCTOR_COMPILE_THREADS": "1"}
@@ -89,12 +93,23 @@ def main() -> None:
             ("eager_b", b, "false"),
             ("warm_b", b, "true"),
         ):
+            if args.compiled_only and mode == "false":
+                continue
             runs[name] = r = run(args.preset, items, mode, ind, env)
             print(
                 f"{name:8s} {r['items']:3d} objects {r['touches']:4d} touches: {r['cpu_s']:7.1f} CPU-s "
                 f"{r['wall_s']:7.1f} s wall, {r['graphs']} graphs",
                 flush=True,
             )
+    if args.compiled_only:
+        ta, tb = runs["warm_a"]["touches"], runs["warm_b"]["touches"]
+        comp = (runs["warm_b"]["cpu_s"] - runs["warm_a"]["cpu_s"]) / (tb - ta)
+        recompiles = runs["warm_b"]["graphs"] - runs["warm_a"]["graphs"]
+        print(f"\n{args.preset}: marginal {comp:.3f} CPU-s per touch compiled; {recompiles} recompiles after {a} items")
+        if args.out:
+            figures = {"compiled_cpu_s_per_touch": comp, "recompiles_after_first_objects": recompiles}
+            args.out.write_text(json.dumps({"preset": args.preset, "runs": runs, "figures": figures}, indent=1))
+        return
     ta, tb = runs["eager_a"]["touches"], runs["eager_b"]["touches"]
     eager = (runs["eager_b"]["cpu_s"] - runs["eager_a"]["cpu_s"]) / (tb - ta)
     comp = (runs["warm_b"]["cpu_s"] - runs["warm_a"]["cpu_s"]) / (tb - ta)
