@@ -33,6 +33,9 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         if experiment != "classify":  # the cls_paper_cpu runs: the paper's 1,500 test images, read once per process
             assert datamodule.dataset_kwargs["eval_draws"] == 10 and datamodule.dataset_kwargs["memory_cache"]
         train, test = datamodule.make_dataset("train"), datamodule.make_dataset("test")
+        # the paper's classifier sees the pad's own 31 pixels, or them upsampled towards the paper's 224 on load
+        size = {"classify": 64, "classify_paper_cpu_upsampled": 112}.get(experiment, 31)
+        assert train.tactile_size == test.tactile_size == (size, size)
         assert train.redraw_touches and not test.redraw_touches  # fresh touches per training epoch only
         assert not train.rotate_touches  # the orientation augmentation is off until measured to help
         if experiment.startswith("classify_contact"):  # beyond the paper: the touches as 3D contact patches
