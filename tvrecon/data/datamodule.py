@@ -24,9 +24,10 @@ from tvrecon.data.cache_housekeeping import announce_uncached, remove_stale_tmp
 from tvrecon.data.datasets import EvalDraws, ReconstructionDataset, TactileClassificationDataset
 from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.shapes import ObjectLibrary
+from tvrecon.data.touches import resize_tactile
 from tvrecon.utils.config_utils import check_whole
 
-__all__ = ["ReconstructionDataModule", "ClassificationDataModule", "worker_init"]
+__all__ = ["ReconstructionDataModule", "ClassificationDataModule", "device_resize", "worker_init"]
 
 _SPLITS = ("train", "val", "test")
 
@@ -66,6 +67,7 @@ class _GeneratedDataModule(LightningDataModule):
         library: ObjectLibrary | Mapping[str, Any] | None = None,
         cache_dir: str | Path | None = None,
         seed: int = 0,
+        device_tactile_size: int | None = None,
         **dataset_kwargs: Any,
     ) -> None:
         super().__init__()
@@ -97,6 +99,9 @@ class _GeneratedDataModule(LightningDataModule):
         self.cache_dir = None if cache_dir is None else str(cache_dir)
         self.seed = int(seed)
         self.dataset_kwargs = {k: _plain(v) for k, v in dataset_kwargs.items()}
+        if device_tactile_size is not None:
+            check_whole(device_tactile_size, "data.device_tactile_size", minimum=1)
+        self.device_tactile_size = None if device_tactile_size is None else int(device_tactile_size)
         self.datasets: dict[str, GeneratedDataset] = {}
 
     # ------------------------------------------------------------------ datasets
@@ -165,6 +170,12 @@ class _GeneratedDataModule(LightningDataModule):
         """The dataset a split's loader serves (a subclass may wrap the split's dataset)."""
         return self.datasets[name]
 
+    def on_after_batch_transfer(self, batch: Any, dataloader_idx: int) -> Any:
+        """With ``device_tactile_size`` S, resize the batch's tactile (B,T,3,h,w) -> (B,T,3,S,S) where the batch
+        now is (the GPU): the loaders then collate and copy the small load-time images (``tactile_size``, e.g. the
+        pad's own 31 pixels) instead of the model's 224, which on a GPU leaves the host the bottleneck."""
+        return device_resize(batch, self.device_tactile_size)
+
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)
 
@@ -176,6 +187,19 @@ class _GeneratedDataModule(LightningDataModule):
 
     def predict_dataloader(self) -> DataLoader:
         return self._loader("test", shuffle=False)
+
+
+def device_resize(batch: Any, size: int | None) -> Any:
+    """``batch`` with its ``tactile`` (B,T,3,h,w) resized to (B,T,3,size,size) by :func:`resize_tactile`, the
+    load-time resize moved after the transfer (same kornia bilinear resize; zeros of padded touches stay zeros).
+    ``size`` None or a batch without tactile images: ``batch`` as it is."""
+    if size is None or not isinstance(batch, Mapping) or "tactile" not in batch:
+        return batch
+    tactile = batch["tactile"]
+    if tactile.ndim != 5:
+        raise ValueError(f"device_tactile_size needs a batch tactile of shape (B,T,3,h,w), got {tuple(tactile.shape)}")
+    out = resize_tactile(tactile.flatten(0, 1), size)  # (B*T,3,S,S); (0,3,S,S) when there is no touch
+    return {**batch, "tactile": out.unflatten(0, tactile.shape[:2])}
 
 
 class ReconstructionDataModule(_GeneratedDataModule):
