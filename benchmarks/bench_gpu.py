@@ -20,8 +20,9 @@ the steps that touch ran (a finished touch leaves the loop). Peak memory: ``torc
 CUDA, the process's max RSS on CPU (monotonic over the run).
 
 ``setup s``: the host set-up of the batch alone (``EIPSimulator.place_batch``: each touch's frame, touch point and mesh
-collider, in ``setup_threads`` threads; ``--setup-threads 1,auto`` compares them), timed once after the calls; it is
-part of ``s/call``.
+collider, in ``setup_threads`` threads; ``--setup-threads 1,auto`` compares them; ``--setup-processes 0,16`` compares
+threads with 16 spawned set-up processes, ``EIPSimulator(setup_processes=16)``, GPU only: the CPU clock here is the
+process's own), timed once after the calls; it is part of ``s/call``. ``thr`` is the set-up's threads, or ``pN``.
 
 Ops and syncs per step (``--count-batch``, default 4, eager only): the aten ops dispatched during one ``press_batch``
 call, counted with a ``TorchDispatchMode``, less those of the same call stopped after one step, per further step;
@@ -172,6 +173,11 @@ def main() -> None:
         help="comma-separated EIPSimulator(setup_threads=...) values to compare, 'auto' = the default policy",
     )
     parser.add_argument(
+        "--setup-processes",
+        default="0",
+        help="comma-separated EIPSimulator(setup_processes=...) values to compare (0: threads; GPU only)",
+    )
+    parser.add_argument(
         "--profile", type=int, default=0, help="after the timings, profile one call of this batch (torch.profiler)"
     )
     args = parser.parse_args()
@@ -180,6 +186,10 @@ def main() -> None:
     device = torch.device(args.device)
     on_cuda = device.type == "cuda"
     batches = [int(b) for b in args.batches.split(",")] if args.batches else [2**k for k in range(11 if on_cuda else 4)]
+    procs = [int(n) for n in args.setup_processes.split(",")]
+    if any(procs) and not on_cuda:
+        parser.error("--setup-processes is timed in wall seconds on a GPU; on the CPU (process CPU time, which does "
+                     "not see the workers) compare set-ups with benchmarks/bench_setup_pool.py")
     name = torch.cuda.get_device_name(device) if on_cuda else f"CPU, {args.threads} thread(s)"
     print(f"torch {torch.__version__}, {name}; time = {'wall' if on_cuda else 'process CPU'} seconds")
     results: dict = {"device": name, "torch": torch.__version__, "runs": [], "counts": []}
@@ -206,9 +216,15 @@ def main() -> None:
             f"  {'mode':9s} {'batch':>5s} {'first s':>8s} {'s/call':>8s} {'touches/s':>10s} {'p-steps/s':>10s} "
             f"{'steps':>6s} {'peak MiB':>9s} {'setup s':>8s} {'thr':>4s}"
         )
-        for mode, threads in [(m, t) for m in args.modes.split(",") for t in args.setup_threads.split(",")]:
+        combos = [(m, t, n) for m in args.modes.split(",") for t in args.setup_threads.split(",") for n in procs]
+        for mode, threads, nproc in combos:
             sim = EIPSimulator(
-                sensor, press, device=device, compile=mode == "compiled", setup_threads=_threads(threads)
+                sensor,
+                press,
+                device=device,
+                compile=mode == "compiled",
+                setup_threads=_threads(threads),
+                setup_processes=nproc,
             )
             for b in batches:
                 if on_cuda:
@@ -233,6 +249,7 @@ def main() -> None:
                     "scene": scene,
                     "mode": mode,
                     "setup_threads": sim._setup_workers(b),
+                    "setup_processes": nproc,
                     "setup_s": setup,
                     "batch": b,
                     "first_s": first,
@@ -247,8 +264,9 @@ def main() -> None:
                 print(
                     f"  {mode:9s} {b:5d} {first:8.2f} {sec:8.2f} {row['touches_per_s']:10.2f} "
                     f"{row['particle_steps_per_s']:10.3g} {row['loop_steps']:6d} {row['peak_mib']:9.0f} "
-                    f"{setup:8.2f} {row['setup_threads']:4d}"
+                    f"{setup:8.2f} {f'p{nproc}' if nproc else row['setup_threads']:>4}"
                 )
+            sim.close()
         if args.profile:
             profile_call(EIPSimulator(sensor, press, device=device), mesh, pos, dirs, strength, args.profile, device)
     if args.out:

@@ -6,6 +6,7 @@ mesh on the lattice nodes of a region (the nodes a sensor can reach) and looks i
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
@@ -215,6 +216,18 @@ class MeshCollider:
         self.hi = torch.as_tensor(hi_i * dx, dtype=torch.float64, device=device)
         self.node_sdf = torch.as_tensor(sdf, dtype=torch.float32, device=device)  # (X, Y, Z)
         self.node_normal = torch.as_tensor(grad, dtype=torch.float32, device=device)  # (X, Y, Z, 3)
+
+    def to(self, device: str | torch.device) -> MeshCollider:
+        """This collider with its tables on ``device`` (a copy; ``self`` when they are there already): the same
+        values, e.g. a collider built on the CPU by a set-up process (:mod:`tvrecon.sim.press.setup_pool`)."""
+        device = torch.device(device)
+        if self.node_sdf.device == device or (device.index is None and self.node_sdf.device.type == device.type):
+            return self
+        out = copy.copy(self)
+        for name, value in vars(self).items():
+            if isinstance(value, Tensor):
+                setattr(out, name, value.to(device))
+        return out
 
     def _cell(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """(N, 3) points -> the (N, 3) int64 table indices of the lower and upper corners of their trilinear cell

@@ -42,6 +42,7 @@ from tvrecon.sim.press import placement
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.loop import PressLoop
 from tvrecon.sim.press.reading import TactileReading
+from tvrecon.sim.press.setup_pool import SetupPool
 from tvrecon.sim.press.stop_rules import travel_for_depth
 from tvrecon.sim.sensor.pad import SensorConfig, _scalar
 from tvrecon.utils.config_utils import (
@@ -87,6 +88,10 @@ class EIPSimulator:
         setup_threads: threads building a call's touches (frame, touch point, mesh collider: host work, about 0.1-0.3
             CPU-s a touch). None (default): the host's cores on a GPU, torch's thread count on the CPU. The
             placements, and so the readings, do not depend on it.
+        setup_processes: N > 0 places a call's touches in N spawned worker processes instead
+            (:mod:`tvrecon.sim.press.setup_pool`: one interpreter each, so the set-up's Python and GIL-holding parts
+            run side by side; the colliders' tables are moved to ``device``). Started on the first call of two or
+            more touches and kept for the simulator's life. 0 (default): threads. The same placements bit for bit.
     """
 
     def __init__(
@@ -96,6 +101,7 @@ class EIPSimulator:
         device: torch.device | str = "cpu",
         compile: bool | str | None = None,
         setup_threads: int | None = None,
+        setup_processes: int = 0,
     ) -> None:
         self.sensor = sensor if sensor is not None else SensorConfig()
         self.cfg = press if press is not None else PressConfig()
@@ -112,6 +118,22 @@ class EIPSimulator:
         ):
             raise ValueError(f"EIPSimulator setup_threads must be a positive int or None, got {setup_threads!r}")
         self.setup_threads = setup_threads
+        if isinstance(setup_processes, bool) or not isinstance(setup_processes, int) or setup_processes < 0:
+            raise ValueError(
+                f"EIPSimulator setup_processes must be a whole number >= 0 (0: threads), got {setup_processes!r}"
+            )
+        self.setup_processes = setup_processes
+        self._setup_pool: SetupPool | None = None
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_setup_pool"] = None  # worker processes do not travel; a copy starts its own
+        return state
+
+    def close(self) -> None:
+        """Stop the set-up worker processes, if any (``setup_processes``; a later call starts them again)."""
+        if self._setup_pool is not None:
+            self._setup_pool.close()
 
     def _setup_workers(self, T: int) -> int:
         """Threads placing the T touches of one call (each touch's collider is built on the CPU: scipy, numpy and
@@ -263,6 +285,10 @@ class EIPSimulator:
             meshes = [meshes] * T
         if len(meshes) != T:
             raise ValueError(f"expected {T} meshes (one per touch) or a single mesh, got {len(meshes)}")
+        if self.setup_processes and T > 1:
+            if self._setup_pool is None:
+                self._setup_pool = SetupPool(self.setup_processes)
+            return self._setup_pool.place(meshes, pos, dirs, s, p, self.device)
         workers = self._setup_workers(T)
         if workers == 1:
             return [self._setup(m, pos[t], dirs[t], s, p) for t, m in enumerate(meshes)]
