@@ -216,6 +216,22 @@ def test_dataset_pickles_without_simulator(recon_cache: Path):
     assert_same(clone[0], ds[0])
 
 
+def test_worker_process_sets_up_touches_in_its_thread_budget(recon_cache: Path, monkeypatch):
+    """In a pool or dataloader worker the simulator's set-up threads follow torch's thread count (1 there), also on a
+    GPU, where the simulator's own default is every core of the host: 16 workers must not start 16 threads each."""
+    import multiprocessing
+
+    assert recon(recon_cache, sim_device="meta").simulator.setup_threads is None  # the main process: the default
+    monkeypatch.setattr(multiprocessing, "parent_process", lambda: object())  # as in a spawned worker
+    saved = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        sim = recon(recon_cache, sim_device="meta").simulator
+        assert sim.setup_threads == 1 and sim._setup_workers(10) == 1
+    finally:
+        torch.set_num_threads(saved)
+
+
 @pytest.mark.slow
 def test_classification_sample_and_shared_cache(tmp_path: Path):
     ds = classif(tmp_path)

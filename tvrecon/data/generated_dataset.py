@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
+import multiprocessing as mp
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -167,7 +168,11 @@ class GeneratedDataset(Dataset):
     def simulator(self) -> EIPSimulator:
         """The per-process simulator (built lazily so datasets pickle cheaply into dataloader workers)."""
         if self._simulator is None:
-            kwargs = {} if self.sim_device is None else {"device": self.sim_device}
+            kwargs: dict[str, Any] = {} if self.sim_device is None else {"device": self.sim_device}
+            if mp.parent_process() is not None:
+                # a worker of generate's pool or of a dataloader (one per core, torch at one thread): the set-up keeps
+                # to the process's thread budget, also on a GPU, where the simulator's own default is every core
+                kwargs["setup_threads"] = torch.get_num_threads()
             self._simulator = EIPSimulator(sensor=self.sensor, press=self.press, **kwargs)
         return self._simulator
 
