@@ -104,6 +104,22 @@ def test_simulator_pickles_without_its_workers(pooled: EIPSimulator) -> None:
     assert copy._setup_pool is None and copy.setup_processes == 2
 
 
+def test_a_dead_worker_is_reported_and_the_next_call_starts_new_ones() -> None:
+    mesh, pos, dirs = _touches()
+    sim = EIPSimulator(SENSOR, PRESS, setup_processes=2)
+    try:
+        expected = sim.place_batch(mesh, pos, dirs)
+        for proc in list(sim._setup_pool._pool._processes.values()):
+            proc.kill()  # as the out-of-memory killer would
+            proc.join()
+        with pytest.raises(RuntimeError, match="set-up worker process died"):
+            sim.place_batch(mesh, pos, dirs)
+        again = sim.place_batch(mesh, pos, dirs)
+        assert all(torch.equal(a.origin, b.origin) for a, b in zip(expected, again, strict=True))
+    finally:
+        sim.close()
+
+
 def test_collider_to_device_copies_the_tables() -> None:
     collider = MeshCollider(trimesh.creation.icosphere(radius=0.2).apply_translation([0.5, 0.5, 0.5]), n_grid=16)
     assert collider.to("cpu") is collider

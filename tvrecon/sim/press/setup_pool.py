@@ -15,6 +15,7 @@ import multiprocessing as mp
 import weakref
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 import torch
@@ -86,16 +87,25 @@ class SetupPool:
         Raises:
             the first failing touch's error (in touch order), as the thread path raises it.
         """
-        pool = self._executor()
         positions, directions = positions.detach().cpu(), directions.detach().cpu()  # what a process can receive
         arrays: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # each distinct mesh's arrays, converted once
         futures = []
-        for t, mesh in enumerate(meshes):
-            if id(mesh) not in arrays:
-                arrays[id(mesh)] = (np.asarray(mesh.vertices), np.asarray(mesh.faces))
-            futures.append(pool.submit(_place_on_cpu, *arrays[id(mesh)], positions[t], directions[t], s, p))
         try:
+            pool = self._executor()
+            for t, mesh in enumerate(meshes):
+                if id(mesh) not in arrays:
+                    arrays[id(mesh)] = (np.asarray(mesh.vertices), np.asarray(mesh.faces))
+                futures.append(pool.submit(_place_on_cpu, *arrays[id(mesh)], positions[t], directions[t], s, p))
             return [_to_device(f.result(), device) for f in futures]
+        except BrokenProcessPool as err:
+            if self._pool is not None:  # the next call starts new workers
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = None
+            raise RuntimeError(
+                f"a touch set-up worker process died (of {self.processes}; killed, e.g. by the out-of-memory killer, "
+                "or crashed in native code): this call's touches were not placed. Call again (new workers start), "
+                "use fewer processes, or setup_processes=0 to set up in threads"
+            ) from err
         finally:
             for f in futures:
                 f.cancel()
