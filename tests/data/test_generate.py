@@ -158,3 +158,24 @@ def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, 
         generate.main([*ARGS, "compile=fast"])
     with pytest.raises(ValueError, match=r"compile=\.\.\. or press.compile=\.\.\., not both"):
         generate.main([*ARGS, "compile=true", "press.compile=false"])
+
+
+def test_export_copies_the_presets_entries_and_they_read_as_cached(tmp_path: Path, capsys) -> None:
+    from hydra.utils import instantiate
+
+    from tvrecon.data.cache_export import export_entries
+
+    cache, dest = tmp_path / "shared", tmp_path / "export"
+    main(ARGS + [f"cache_dir={cache}", "workers=1"])  # every split in the shared cache: 5 entries
+    (st,) = main(ARGS + [f"cache_dir={cache}", "workers=1", "splits=train", f"export={dest}"])
+    assert "exported to" in capsys.readouterr().out
+    assert st.skipped == 3 and len(list(dest.glob("*/*.npz"))) == 3 < len(list(cache.glob("*/*.npz")))  # train's 3
+    assert not list(dest.rglob("*.tmp"))
+    overrides = [a for a in ARGS if not a.startswith("preset")] + [f"cache_dir={dest}"]
+    ds = instantiate(compose_preset("cls_tiny", overrides)).make_dataset("train")
+    assert all(ds.raw(i)[1] for i in range(len(ds)))  # every item read from the exported folder, none simulated
+    again = export_entries(ds, tmp_path / "again")
+    assert again.copied == 3 and again.missing == 0
+    assert export_entries(ds, tmp_path / "again").present == 3  # a second export copies nothing
+    with pytest.raises(ValueError, match="own cache folder"):
+        export_entries(ds, dest)

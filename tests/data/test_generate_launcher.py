@@ -93,7 +93,7 @@ def test_a_job_gets_compile_as_its_press_config() -> None:
         (["shard=0/4,1/4,1/4"], "listed twice"),
         (["shard=0/4,1/2"], "must share their n"),
         (["preset=tiny,nope"], "unknown data preset 'nope'"),
-        (["train.num_samples=2,4"], "only preset, splits, workers, shard, compile can be swept"),
+        (["train.num_samples=2,4"], "only preset, splits, workers, shard, compile, export can be swept"),
         (["tiny"], "key=value"),
     ],
 )

@@ -31,8 +31,14 @@ per shard (``tvrecon/data/generate_launcher.py``, ``configs/generate.yaml``; job
         hydra/launcher=submitit_slurm hydra.launcher.partition=cpu hydra.launcher.cpus_per_task=8 \
         hydra.launcher.timeout_min=240
 
-``preset``, ``splits``, ``workers``, ``shard`` and ``compile`` can be swept (``a,b``); data overrides are passed
-unchanged to every job. The shards of all jobs write exactly the cache entries of a single-process run, and each job
+``export=DIR`` copies each split's cached entries (this shard's) into the cache folder DIR after generating them: the
+part of a shared cache that this preset reads, to take to a GPU machine or a cluster (``cache_dir=DIR`` there;
+:mod:`tvrecon.data.cache_export`)::
+
+    python -m tvrecon.data.generate preset=cls_paper_cpu library.protocol=shared_base export=/tmp/cls_paper_cpu
+
+``preset``, ``splits``, ``workers``, ``shard``, ``compile`` and ``export`` can be swept (``a,b``); data overrides are
+passed unchanged to every job. The shards of all jobs write exactly the cache entries of a single-process run, and each job
 skips the items already cached: rerun the same command after a job failed or hit its time limit.
 
 Each worker process runs one torch thread; an item's touches are simulated in one ``press_batch`` call. Items
@@ -59,6 +65,7 @@ import torch
 from tqdm.auto import tqdm
 
 from tvrecon.data.cache import cache_key
+from tvrecon.data.cache_export import export_entries
 from tvrecon.data.cache_housekeeping import remove_stale_tmp
 from tvrecon.data.generate_args import OPTION_KEYS, parse_shard
 from tvrecon.data.generated_dataset import GeneratedDataset
@@ -373,6 +380,13 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
             flush=True,
         )
         print(f"[{label}] {contact_report(ds).line()}", flush=True)  # blank touches per class (thin parts)
+        if opts.get("export"):
+            ex = export_entries(ds, opts["export"], indices=shard_indices(len(ds), shard))
+            print(
+                f"[{label}] exported to {Path(opts['export']).expanduser().resolve()}: {ex.copied} entries copied "
+                f"({ex.bytes_copied / 2**20:.2f} MiB), {ex.present} already there, {ex.missing} not cached",
+                flush=True,
+            )
     return results
 
 

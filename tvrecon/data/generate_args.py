@@ -6,7 +6,7 @@ from __future__ import annotations
 __all__ = ["OPTION_KEYS", "parse_shard"]
 
 #: the ``key=value`` arguments of the command itself; every other one is an override of the data config
-OPTION_KEYS = ("preset", "splits", "workers", "shard", "compile")
+OPTION_KEYS = ("preset", "splits", "workers", "shard", "compile", "export")
 
 
 def parse_shard(text: str) -> tuple[int, int]:

@@ -155,6 +155,8 @@ def job_arguments(cfg: DictConfig) -> list[str]:
         argv.append(f"workers={cfg.workers}")
     if cfg.compile is not None:
         argv.append(f"compile={str(cfg.compile).lower()}")
+    if cfg.get("export") is not None:
+        argv.append(f"export={cfg.export}")
     overrides = OmegaConf.to_container(cfg.data_overrides, resolve=False)  # ${...} of a data override stays as typed
     return argv + [str(o) for o in overrides]  # type: ignore[union-attr]
 
