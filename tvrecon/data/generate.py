@@ -38,8 +38,8 @@ part of a shared cache that this preset reads, to take to a GPU machine or a clu
     python -m tvrecon.data.generate preset=cls_paper_cpu library.protocol=shared_base export=/tmp/cls_paper_cpu
 
 ``preset``, ``splits``, ``workers``, ``shard``, ``compile`` and ``export`` can be swept (``a,b``); data overrides are
-passed unchanged to every job. The shards of all jobs write exactly the cache entries of a single-process run, and each job
-skips the items already cached: rerun the same command after a job failed or hit its time limit.
+passed unchanged to every job. The shards of all jobs write exactly the cache entries of a single-process run, and each
+job skips the items already cached: rerun the same command after a job failed or hit its time limit.
 
 Each worker process runs one torch thread; an item's touches are simulated in one ``press_batch`` call. Items
 already in the cache (and readable) are skipped, so an interrupted run resumes where it stopped. The progress bar
