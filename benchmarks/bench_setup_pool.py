@@ -24,17 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_gpu import _tile, paper_scene  # noqa: E402
+from bench_setup_ab import same  # noqa: E402
 
 from tvrecon.sim import EIPSimulator  # noqa: E402
-
-
-def same(a, b) -> bool:
-    """The same touch point, frame and collider tables, bit for bit."""
-    if (a.collider is None) != (b.collider is None) or not torch.equal(a.origin, b.origin):
-        return False
-    if a.collider is None:
-        return True
-    return all(torch.equal(getattr(a.collider, t), getattr(b.collider, t)) for t in ("node_sdf", "node_normal", "lo"))
 
 
 def main() -> None:
