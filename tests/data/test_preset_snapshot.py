@@ -8,7 +8,10 @@ The one intended difference is ``touch._target_``, added when touch policies bec
 names the default policy, whose cache key it does not enter. Presets added later (``cls_paper_cpu``, issue 12) were
 written into the fixture the same way, without ``touch._target_``, and their other presets' entries left untouched.
 The fixture was rewritten on purpose when the presets moved to the paper's touches (issue 24: ``touch/paper_sweep``,
-the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon-data-5``).
+the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon-data-5``). ``press.collider_refine: 2``
+was then added to ``press/eip_cpu`` (the object's table at the authors' spacing, so that thin parts are felt on the 64
+grid): the presets on that block (``small``, ``cls_paper_cpu``, ``cls_sweep_cpu`` and their experiments) gained the key
+in both fixtures, and their cache keys changed with it.
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update

@@ -41,7 +41,7 @@ def test_near_blocks_and_mesh_contact_equal_the_eager_search():
     hv = torch.randn(B * M, 3, generator=g)
     shifts = stencil_shifts(100, 10, torch.device("cpu"))
     tables = stack.lookup_tables(x.dtype)
-    out = mesh_contact(gv, node_mass, lin, w_all, shifts, cand, scene[cand], x, mass, alpha, hv, *tables, dx, 1e-3)
+    out = mesh_contact(gv, node_mass, lin, w_all, shifts, cand, scene[cand], x, mass, alpha, hv, *tables, dx, dx, 1e-3)
     phi, n = stack.sdf_normal(x[cand], scene[cand])
     phi = torch.where(phi < dx, phi, torch.full_like(phi, math.inf))
     want = (*contact_setup(gv, node_mass, lin, w_all, shifts, cand, mass, alpha, hv, 1e-3), phi, n)
@@ -54,15 +54,18 @@ def test_near_blocks_and_mesh_contact_equal_the_eager_search():
 
 @pytest.mark.slow
 @needs_compiler
-def test_compiled_mesh_press_batch_uses_the_mesh_kernels_and_matches_eager(monkeypatch):
+@pytest.mark.parametrize("refine", [1, 2])
+def test_compiled_mesh_press_batch_uses_the_mesh_kernels_and_matches_eager(monkeypatch, refine):
     """Two touches of a mesh in one loop (``press_batch``), compiled vs eager: the same steps, images within 1e-4
     grid cells (the stated tolerance of ``compile=True`` readings), forces within 1e-5; the compiled press ran the
-    prefilter and the lookup as their kernels at every step."""
+    prefilter and the lookup as their kernels at every step. ``refine`` 2: the object's table twice as fine as the
+    grid (``PressConfig.collider_refine``), looked up at its own spacing by the kernels."""
     from tvrecon.sim.press import EIPSimulator, PressConfig
     from tvrecon.sim.sensor.pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
-    sensor, press = SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=48, contact="particle")
+    sensor = SensorConfig(resolution=(12, 12), layers=4)
+    press = PressConfig(n_grid=48, contact="particle", collider_refine=refine)
     pos = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]]
     dirs = [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)

@@ -97,7 +97,12 @@ def collider_at_block(
     """Signed distance (nb,) and unit normal (nb, 3) of ``col`` at the nodes of a block (``D`` nodes from global node
     ``lo``, i slowest), in ``dtype``: a tabulated collider's own nodes (``at_block`` / ``at_nodes``, no
     interpolation), else its ``sdf`` / ``normal`` at the node positions. ``local``: :func:`block_nodes` of ``D``
-    when the caller has it (built here otherwise)."""
+    when the caller has it (built here otherwise). A table of another spacing than the grid's (a mesh collider
+    ``PressConfig.collider_refine`` times finer) is interpolated at the node positions."""
+    if not _on_lattice(col, dx):
+        pos = (block_nodes(D, device) if local is None else local) + torch.tensor(list(lo), device=device)
+        pos = pos.to(dtype) * dx  # (nb, 3) node positions
+        return col.sdf(pos), col.normal(pos)
     if hasattr(col, "at_block"):  # tabulated collider: the block's nodes by per-axis indices (no interpolation)
         sdf, n = col.at_block(lo, D, device)
         return sdf.to(dtype), n.to(dtype)
@@ -109,3 +114,9 @@ def collider_at_block(
         return sdf.to(dtype), n.to(dtype)
     pos = node.to(dtype) * dx  # (nb, 3) node positions
     return col.sdf(pos), col.normal(pos)
+
+
+def _on_lattice(col: Collider, dx: float) -> bool:
+    """Whether a tabulated collider's nodes are the grid's (its ``dx`` that of the grid); analytic ones are."""
+    own = getattr(col, "dx", None)
+    return own is None or abs(float(own) - float(dx)) <= 1e-9 * float(dx)

@@ -390,7 +390,7 @@ def particle_contact_grid(
             shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
             prep = kernels(
                 "mesh_contact", gv, node_mass, st.lin, st.w, shifts, cand, scene, state.x, state.mass, alpha, hv,
-                *mesh.lookup_tables(state.x.dtype), dx, dt,
+                *mesh.lookup_tables(state.x.dtype), mesh.dx, dx, dt,
             )
             gv, total = kernels("contact", gv, *prep, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
         force = gv.new_zeros(B, 3).index_add(0, scene, total)
@@ -459,6 +459,7 @@ def mesh_contact(
     table: Tensor,
     box: Tensor,
     up: Tensor,
+    table_dx: float,
     dx: float,
     dt: float,
 ) -> tuple[Tensor, ...]:
@@ -466,8 +467,9 @@ def mesh_contact(
     colliders, after the search, as one function (the compiled step runs it as one kernel, ``"mesh_contact"``, and
     the passes as another: one kernel of both was measured ~2x slower with dynamic shapes): their sdf and normals
     (:func:`~tvrecon.sim.bodies.mesh_stack.stacked_sdf_normal` from ``MeshStack.lookup_tables``; +inf beyond the reach
-    of one cell ``dx``) and :func:`contact_setup`. Returns ``contact_setup``'s six values, then the (K,) sdf and (K,
-    3) normals, as :func:`particle_contact_grid`'s eager steps compute them (to round-off)."""
-    phi, n = stacked_sdf_normal(x[cand], scene, cell_f64, cell_i64, table, box, up, dx)
+    of one grid cell ``dx``; ``table_dx``: the tables' node spacing, ``dx`` or finer) and :func:`contact_setup`.
+    Returns ``contact_setup``'s six values, then the (K,) sdf and (K, 3) normals, as :func:`particle_contact_grid`'s
+    eager steps compute them (to round-off)."""
+    phi, n = stacked_sdf_normal(x[cand], scene, cell_f64, cell_i64, table, box, up, table_dx)
     phi = torch.where(phi < dx, phi, math.inf)  # beyond the reach (or NaN): no contact, exactly
     return (*contact_setup(gv, node_mass, lin, w_all, shifts, cand, mass, alpha, hand_velocity, dt), phi, n)

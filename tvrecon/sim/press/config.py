@@ -11,11 +11,14 @@ from tvrecon.sim.mpm.state import CONTACT_MODES
 from tvrecon.sim.sensor.pad import _scalar
 from tvrecon.utils.config_utils import NOT_IN_KEY, OMIT_IF_DEFAULT, check_number, check_whole
 
-__all__ = ["DEFAULT_THRESHOLD", "TERMINAL_MEASURES", "PressConfig"]
+__all__ = ["DEFAULT_THRESHOLD", "MAX_COLLIDER_REFINE", "TERMINAL_MEASURES", "PressConfig"]
 
 #: Default terminal threshold, in squared grid cells per contact-layer particle (see
 #: :func:`tvrecon.sim.press.stop_rules.terminal_chamfer`).
 DEFAULT_THRESHOLD = 0.05
+
+#: Largest ``PressConfig.collider_refine``: the object's table grows as its cube (4 is 64x the grid's nodes).
+MAX_COLLIDER_REFINE = 4
 
 #: ``PressConfig.terminal``: what the terminal threshold is compared with (paper eq. 12 first, the default).
 TERMINAL_MEASURES = ("chamfer", "displacement")
@@ -67,6 +70,15 @@ class PressConfig:
             cell), so on a face larger than the pad the chamfer stop comes deeper on finer grids (0.61 of the 256
             depth at 128); the displacement stop does not (0.98-0.99). Elsewhere the two agree. docs/physics.md, "The
             stop depth across the object library".
+        collider_refine: the object's signed-distance table (``MeshCollider``) is sampled ``collider_refine`` times
+            finer than the grid (spacing ``dx / collider_refine``). The trilinear table cannot hold a part thinner
+            than about one of its cells (both nodes astride a blade or a rod lie outside it, so the interpolated
+            distance stays positive and the pad passes through): on the 64 grid of the CPU presets a spoon's bowl, a
+            screwdriver's shaft or a pan's wall is felt in only some touches. 2 on the 64 grid samples the object
+            as finely as the authors' 128 grid does, at the cost of a larger set-up table (8x the nodes); the pad,
+            the grid and the steps are unchanged. The particle contact looks the table up at the particles; the grid
+            contact interpolates it at the nodes (``grid_contact.collider_at_block``). Default 1 (the grid's own
+            nodes, the earlier behaviour, out of the data cache key).
         compile: run the solver's no-grad steps with its fused ``torch.compile`` kernels (``MLSMPM(compile=True)``,
             :mod:`tvrecon.sim.mpm.compiled`). How a touch is computed, not what it is: the readings equal the eager
             ones to float32 round-off (1e-4 grid cells tested), so it never enters the data cache key
@@ -103,6 +115,7 @@ class PressConfig:
     contact: str = field(default="particle", metadata=OMIT_IF_DEFAULT)
     threshold_grid: int | None = field(default=128, metadata=OMIT_IF_DEFAULT)
     terminal: str = field(default="chamfer", metadata=OMIT_IF_DEFAULT)
+    collider_refine: int = field(default=1, metadata=OMIT_IF_DEFAULT)
     compile: bool | str = field(default=AUTO, metadata=NOT_IN_KEY)
 
     def __post_init__(self) -> None:
@@ -145,5 +158,11 @@ class PressConfig:
         if tg is not None and not (isinstance(tg, int) and not isinstance(tg, bool) and tg > 0):
             raise ValueError(f"PressConfig.threshold_grid must be a positive int or None, got {self.threshold_grid!r}")
         check_compile_setting(self.compile, "PressConfig.compile")
+        check_whole(self.collider_refine, "PressConfig.collider_refine")
+        if not 1 <= int(self.collider_refine) <= MAX_COLLIDER_REFINE:
+            raise ValueError(
+                f"PressConfig.collider_refine must be a whole number in [1, {MAX_COLLIDER_REFINE}] (the object's table "
+                f"is that many times finer than the grid), got {self.collider_refine}"
+            )
         if self.terminal not in TERMINAL_MEASURES:
             raise ValueError(f"PressConfig.terminal must be one of {TERMINAL_MEASURES}, got {self.terminal!r}")

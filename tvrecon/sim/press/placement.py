@@ -160,8 +160,14 @@ def place_touch(
     hi = np.array([0.5 + (hx + 3) * dx, 0.5 + (hy + 3) * dx, zt + (float(p.gap) + 2) * dx])
     # open meshes (walls of zero thickness) are solid behind the first surface the pad meets; `mesh` has the faces of
     # `mdom` (watertightness is topology: trimesh keeps it on `mesh` for the next touch of the same object)
+    # the table `collider_refine` times finer than the grid: a part under a grid cell thick is held (PressConfig)
     collider = _colliders.MeshCollider(
-        mdom, n_grid=int(p.n_grid), region=(lo, hi), device=device, from_above=True, watertight=mesh.is_watertight
+        mdom,
+        n_grid=int(p.n_grid) * int(p.collider_refine),
+        region=(lo, hi),
+        device=device,
+        from_above=True,
+        watertight=mesh.is_watertight,
     )
     x_rest = pad_lattice(s, device=device) * dx + torch.tensor([0.5, 0.5, zt + float(p.gap) * dx], device=device)
     inside = collider.count_inside(x_rest)  # no interpolation when no reachable node is inside
