@@ -66,11 +66,12 @@ class PaperSweepTouchPolicy(TouchPolicy):
     elevation uniformly in the range. Each press stops ``depth_fraction`` x the object's max extent past first
     contact (a ``depth`` stop in the press's cells; ``depth_fractions`` draws one per touch, uniformly).
 
-    A part thinner than the grid resolves (a fork's tines or a spoon's bowl under a cell thick) is not felt: the
-    pad reads blank and the reading's ``contact`` is False. Pressing such a touch again deeper does not help (the pad
-    passes through a part the grid cannot hold), so the dataset keeps the blank reading (the cache entry's
-    ``contact`` flag) and ``tvrecon.data.generate`` reports the misses per class; a finer grid (the ``paper``
-    presets' 128) is the cure.
+    A part thinner than the object's distance table resolves (a spoon's bowl or a screwdriver's shaft under one of
+    its cells thick) is not felt: the pad reads blank and the reading's ``contact`` is False. Pressing such a touch
+    again deeper does not help (the pad passes through a part the table cannot hold), so the dataset keeps the blank
+    reading (the cache entry's ``contact`` flag) and ``tvrecon.data.generate`` reports the misses per class. The cure
+    is a finer table, not a finer grid: ``PressConfig.collider_refine`` (2 in ``press/eip_cpu``: the authors' 1/128
+    on the CPU presets' 64 grid, where 9% of the touches felt nothing on the grid's own nodes and none do now).
 
     Attributes:
         elevation_deg: (first, last) elevation of the sweep in degrees above the horizon, in [-90, 90].
