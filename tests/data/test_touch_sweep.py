@@ -128,7 +128,9 @@ def test_a_touch_that_misses_a_thin_part_reads_blank_and_is_reported_per_class(t
 
 def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
     """A touch of the shared_base pear (instance 3, its seventh touch: the stem, about a cell thick, from 60 degrees)
-    diverges at the CPU presets' CFL step; the dataset presses it alone with half the step and reads it."""
+    diverges at the CPU presets' CFL step on the grid's own table nodes; the dataset presses it alone with half the
+    step and reads it. With the presets' table at 1/128 (``collider_refine: 2``) the stem is held and the same touch
+    does not diverge."""
     from tvrecon.data.shapes import ObjectLibrary
 
     ds = TactileClassificationDataset(
@@ -138,7 +140,7 @@ def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
         library=ObjectLibrary(protocol="shared_base"),
         cache_dir=None,
         sensor=_block("sensor", "eip_cpu"),
-        press=_block("press", "eip_cpu"),
+        press={**_block("press", "eip_cpu"), "collider_refine": 1},
     )
     assert ds.object_of(128) == ("pear", 3)
     mesh = ds.mesh(128)
@@ -150,6 +152,8 @@ def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
         ds.simulator.press_batch(mesh, one.positions, one.directions, **one.strengths[0])
     (reading,) = ds._simulate_stable(mesh, one)
     assert torch.isfinite(reading.image).all() and reading.steps > 0
+    fine = ds.simulator.press_batch(mesh, one.positions, one.directions, collider_refine=2, **one.strengths[0])
+    assert torch.isfinite(fine[0].image).all() and fine[0].contact
 
 
 def test_shuffled_order_is_the_same_sweep_and_sweep_order_keeps_the_key() -> None:
