@@ -136,7 +136,7 @@ def test_defaults_and_cache_keys():
     # at their defaults the fields stay out of the cache spec: a spec without them has the same key
     spec = canonical_json({"press": p})
     assert "contact" not in spec and "threshold_grid" not in spec
-    newer = ("contact", "threshold_grid", "terminal", "compile")  # fields added after data was cached
+    newer = ("contact", "threshold_grid", "terminal", "collider_refine", "compile")  # added after data was cached
     legacy = {f.name: getattr(p, f.name) for f in dataclasses.fields(p) if f.name not in newer}
     assert cache_key({"press": p}) == cache_key({"press": legacy})
     # any other value enters the key
