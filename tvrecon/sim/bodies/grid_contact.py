@@ -99,17 +99,14 @@ def collider_at_block(
     interpolation), else its ``sdf`` / ``normal`` at the node positions. ``local``: :func:`block_nodes` of ``D``
     when the caller has it (built here otherwise). A table of another spacing than the grid's (a mesh collider
     ``PressConfig.collider_refine`` times finer) is interpolated at the node positions."""
-    if not _on_lattice(col, dx):
-        pos = (block_nodes(D, device) if local is None else local) + torch.tensor(list(lo), device=device)
-        pos = pos.to(dtype) * dx  # (nb, 3) node positions
-        return col.sdf(pos), col.normal(pos)
-    if hasattr(col, "at_block"):  # tabulated collider: the block's nodes by per-axis indices (no interpolation)
+    own = _on_lattice(col, dx)
+    if own and hasattr(col, "at_block"):  # tabulated collider: the block's nodes by per-axis indices (no interpolation)
         sdf, n = col.at_block(lo, D, device)
         return sdf.to(dtype), n.to(dtype)
     if local is None:
         local = block_nodes(D, device)
     node = local + torch.tensor(list(lo), device=device)  # (nb, 3) global node indices
-    if hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
+    if own and hasattr(col, "at_nodes"):  # tabulated collider: gather at the lattice nodes (no interpolation)
         sdf, n = col.at_nodes(node)
         return sdf.to(dtype), n.to(dtype)
     pos = node.to(dtype) * dx  # (nb, 3) node positions
