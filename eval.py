@@ -115,6 +115,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         target = str(run_cfg.model._target_)
         if target.endswith("ClassificationModule"):
             run_cfg.model.eval_touches = list(cfg.cls_touches)
+            if cfg.get("cls_headings") is not None:
+                run_cfg.model.headings = int(cfg.cls_headings)
         else:
             run_cfg.model.eval_touches = list(cfg.eval_touches)
             run_cfg.model.export = bool(cfg.export)
@@ -131,10 +133,19 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
     model.load_state_dict(state["state_dict"])
+    split = eval_split(cfg)
     with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
-        trainer.test(model=model, datamodule=datamodule)
-    result = getattr(model, "test_results", None)
-    if result is None:
+        if split == "val":
+            logged = trainer.validate(model=model, datamodule=datamodule)
+        else:
+            trainer.test(model=model, datamodule=datamodule)
+    if split == "val":
+        # the validation split: for choosing evaluation settings without the test split (no paper tables)
+        result = {"task": "validation", "name": run_cfg.get("experiment_name")}
+        result["val"] = {str(k): float(v) for d in logged for k, v in d.items()}
+        if run_cfg.model.get("headings") is not None:
+            result["headings"] = int(run_cfg.model.headings)
+    elif (result := getattr(model, "test_results", None)) is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
     result = {
         **result,
@@ -151,6 +162,24 @@ def _last_instead(ckpt: Path) -> Path | None:
     """The run's ``last.ckpt`` when ``ckpt`` is another (best) checkpoint of the same folder, else None."""
     last = ckpt.parent / "last.ckpt"
     return last if last.is_file() and last.resolve() != ckpt.resolve() else None
+
+
+def eval_split(cfg: DictConfig) -> str:
+    """``cfg.split``: "test" (default, the paper's tables) or "val" (the validation split, metrics only)."""
+    split = str(cfg.get("split", "test"))
+    if split not in ("test", "val"):
+        raise ValueError(f"split must be 'test' or 'val', got {split!r}")
+    return split
+
+
+def validation_text(results: list[dict[str, Any]]) -> str:
+    """A markdown table of each run's validation metrics (``split=val``), one row a checkpoint."""
+    keys = sorted({k for r in results for k in r.get("val", {})})
+    lines = ["| checkpoint | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for r in results:
+        cells = [f"{r['val'][k]:.4f}" if k in r.get("val", {}) else "-" for k in keys]
+        lines.append(f"| {r['checkpoint']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
@@ -196,7 +225,11 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
             f"no checkpoint below {cfg.get('run_dir')} could be evaluated (truncated or corrupt checkpoints, or run "
             f"folders without .hydra/config.yaml; the warnings above name each): {skipped}"
         )
-    text = report_tables(results, out_root)
+    if eval_split(cfg) == "val":
+        text = validation_text(results)
+        print("\n" + text, flush=True)
+    else:
+        text = report_tables(results, out_root)
     if skipped:
         log.warning("tables leave out %d run(s) whose checkpoint is unreadable: %s", len(skipped), ", ".join(skipped))
     return {"results": results, "tables": text, "output_dir": str(out_root), "skipped": skipped}

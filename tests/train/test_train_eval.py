@@ -140,6 +140,21 @@ def test_train_checkpoint_then_eval_writes_tables(tmp_path: Path) -> None:
     assert objs == [f"{c}_{m}.obj" for c in ("bottle", "bowl", "can") for m in ("tv2", "visual")]
     assert (run_out / "renders" / "test_bottle_tv2.png").is_file()
 
+    # split=val scores the validation split (choosing an evaluation setting without the test split): metrics only
+    val = evaluate(compose_config("eval", [f"run_dir={run}", "split=val"], tmp_path / "eval_val"))
+    [vres] = val["results"]
+    assert vres["task"] == "validation" and vres["checkpoint"] == str(best)
+    assert vres["val"]["val/chamfer"] > 0 and "val/chamfer" in val["tables"]
+    assert not (tmp_path / "eval_val" / "tables").exists()
+
+
+def test_eval_split_must_be_test_or_val(tmp_path: Path) -> None:
+    from eval import eval_split
+
+    assert eval_split(compose_config("eval", ["ckpt_path=x.ckpt"], tmp_path)) == "test"
+    with pytest.raises(ValueError, match="split must be 'test' or 'val'"):
+        eval_split(compose_config("eval", ["ckpt_path=x.ckpt", "split=train"], tmp_path))
+
 
 def test_missing_checkpoint_names_path_and_command(tmp_path: Path) -> None:
     from eval import evaluate

@@ -22,6 +22,7 @@ from torch import Tensor, nn
 from tvrecon.data.touch_select import set_loader_epoch
 from tvrecon.models.class_names import datamodule_class_names
 from tvrecon.models.finite_loss import check_finite_loss
+from tvrecon.models.heading_ensemble import check_headings, heading_ensemble
 from tvrecon.models.optim import configure_optimizers
 from tvrecon.utils.shapes import check_shape
 
@@ -126,6 +127,9 @@ class ClassificationModule(L.LightningModule):
         controls: test-time touch controls: ``"other"`` also classifies every test sample from another object's
             touches (the next sample of the batch with another label, :func:`other_object_index`) and scores the
             prediction against the sample's own label: a model that reads its touches falls towards chance.
+        headings: validation and test ask the network K times, the touch set turned about +z by ``2 pi k / K``, and
+            average the class probabilities (:mod:`tvrecon.models.heading_ensemble`; for a network that reads 3D
+            inputs and trained with ``data.rotate_pose``). 1 (default): the set as it is, one answer.
 
     Test results (``test_results``, written to ``metrics.json``): ``accuracy`` {k: fraction}, and per touch count k
     the ``confusion`` matrix (C, C) int (rows: true class, columns: predicted), ``per_class`` accuracy {name:
@@ -145,6 +149,7 @@ class ClassificationModule(L.LightningModule):
         seed: int | None = None,
         class_names: Sequence[str] | None = None,
         controls: Sequence[str] = (),
+        headings: int = 1,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
@@ -170,6 +175,7 @@ class ClassificationModule(L.LightningModule):
         if unknown:
             raise ValueError(f"unknown classification controls {unknown}; available: ['other']")
         self.touch_inputs = tuple(getattr(net, "touch_inputs", ("tactile",)))
+        self.headings = check_headings(headings, self.touch_inputs)
         self._confusion: dict[int, Tensor] = {}
         self._other: dict[int, Tensor] = {}
         self.test_results: dict[str, Any] | None = None
@@ -177,6 +183,13 @@ class ClassificationModule(L.LightningModule):
     def forward(self, *inputs: Tensor) -> Tensor:
         """Args: the per-touch inputs named by ``touch_inputs``, each (B, N, ...). Returns logits (B, C) float."""
         return self.net(*inputs)
+
+    def evaluate(self, *inputs: Tensor) -> Tensor:
+        """The evaluation answer: logits (B, C) float with ``headings=1``, else the log of the class probabilities
+        averaged over the headings (:func:`~tvrecon.models.heading_ensemble.heading_ensemble`); argmax is the class."""
+        if self.headings == 1:
+            return self(*inputs)
+        return heading_ensemble(self, inputs, self.touch_inputs, self.headings)
 
     def _inputs(self, batch: dict[str, Tensor], n: int) -> list[Tensor]:
         """The first ``n`` valid touches of every input the network reads, each (B, n, ...)."""
@@ -209,7 +222,7 @@ class ClassificationModule(L.LightningModule):
         return loss
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        logits = self(*self._inputs(batch, self.num_touches))
+        logits = self.evaluate(*self._inputs(batch, self.num_touches))
         B = logits.shape[0]
         self.log("val/loss", F.cross_entropy(logits, batch["label"]), prog_bar=True, batch_size=B, sync_dist=True)
         acc = (logits.argmax(1) == batch["label"]).float().mean()
@@ -229,14 +242,14 @@ class ClassificationModule(L.LightningModule):
             if k > available:
                 continue
             inputs = self._inputs(batch, k)
-            logits = self(*inputs)  # (B, C)
+            logits = self.evaluate(*inputs)  # (B, C)
             C = logits.shape[1]
             pair = batch["label"] * C + logits.argmax(1)  # (B,) true * C + predicted
             counts = torch.bincount(pair, minlength=C * C).view(C, C)
             self._confusion[k] = counts if k not in self._confusion else self._confusion[k] + counts
             if "other" in self.controls:
                 partner, valid = other_object_index(batch["label"])
-                hits = (self(*[x[partner] for x in inputs]).argmax(1) == batch["label"]) & valid
+                hits = (self.evaluate(*[x[partner] for x in inputs]).argmax(1) == batch["label"]) & valid
                 tally = torch.stack([hits.sum(), valid.sum()])  # (2,) correct, counted
                 self._other[k] = tally if k not in self._other else self._other[k] + tally
 
@@ -269,6 +282,7 @@ class ClassificationModule(L.LightningModule):
             "name": self.hparams.name,
             "seed": self.hparams.seed,
             "num_touches": self.num_touches,
+            "headings": self.headings,
             "accuracy": accuracy,
             "per_class": per_class,
             "confusion": confusion,
