@@ -109,3 +109,19 @@ def test_tables_and_report_include_the_per_class_table(tmp_path: Path) -> None:
     assert "Table 2 per class" in text and text.index("Table 2:") < text.index("Table 2 per class")
     assert (tmp_path / "tables" / "confusion_10touch.png").is_file()
     assert (tmp_path / "tables" / "table2_per_class.csv").read_text().startswith("Class,1-touch,10-touch")
+
+
+def test_runs_asked_over_several_headings_are_their_own_row(tmp_path: Path) -> None:
+    from tvrecon.report.cls_report import build_table2, model_key, model_label
+
+    plain = result(0, 10, [[4, 0, 0], [0, 4, 0], [0, 0, 4]])
+    turned = {**result(0, 10, [[2, 2, 0], [0, 4, 0], [0, 0, 4]]), "headings": 8}
+    assert model_key(plain) == "classify" and model_key({**plain, "headings": 1}) == "classify"
+    assert model_key(turned) == "classify@8headings"
+    assert model_label("classify@8headings").endswith(", 8 headings averaged")
+    rows = {r[0]: r for r in build_table2([plain, turned]).rows}
+    assert len(rows) == 2  # the same checkpoint asked two ways is never averaged as two seeds
+    [label] = [k for k in rows if k.endswith("8 headings averaged")]
+    assert rows[label][-1] == "83.3 +- 0.0" and "100.0 +- 0.0" in [r[-1] for r in rows.values()]
+    paths = write_confusion_plots([plain, turned], tmp_path)
+    assert all("@" not in p.name for p in paths) and len(paths) == 2

@@ -44,10 +44,24 @@ def _cls(results: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     return [r for r in check_results(results) if r["task"] == "classification" and r.get("confusion")]
 
 
+def model_key(result: Mapping[str, Any]) -> str:
+    """The model a classification result belongs to: its experiment name, with ``@<K>headings`` when it was asked
+    over K > 1 headings (``model.headings``): the same checkpoints asked differently are another row, never a seed."""
+    k = int(result.get("headings") or 1)
+    return str(result["name"]) + (f"@{k}headings" if k > 1 else "")
+
+
+def model_label(key: str) -> str:
+    """The readable name of a :func:`model_key`: ``"Contact-cloud classifier (...), 8 headings averaged"``."""
+    name, _, headings = key.partition("@")
+    label = PRETTY_NAMES.get(name, name)
+    return label + (f", {headings.removesuffix('headings')} headings averaged" if headings else "")
+
+
 def _by_model(results: Iterable[Mapping[str, Any]]) -> dict[str, list[Mapping[str, Any]]]:
     groups: dict[str, list[Mapping[str, Any]]] = {}
     for r in _cls(results):
-        groups.setdefault(str(r["name"]), []).append(r)
+        groups.setdefault(model_key(r), []).append(r)
     return groups
 
 
@@ -107,7 +121,7 @@ def build_per_class_table(results: Iterable[Mapping[str, Any]], touches: Sequenc
                 row.append("-")
         rows.append(row)
     several = len(groups) > 1
-    header = ["Class"] + [f"{PRETTY_NAMES.get(n, n)} {k}-touch" if several else f"{k}-touch" for n, k in columns]
+    header = ["Class"] + [f"{model_label(n)} {k}-touch" if several else f"{k}-touch" for n, k in columns]
     notes = [
         "Accuracy (%) of each class's test draws, mean +- sample std over the runs (seeds) of each touch count; "
         "the confusion matrices summed over those runs are confusion_<k>touch.png."
@@ -153,10 +167,10 @@ def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | P
     paths = []
     for name, runs in groups.items():
         by_k = confusion_by_touches(runs)
-        stem = f"confusion_{name}_" if len(groups) > 1 else "confusion_"
+        stem = f"confusion_{name.replace('@', '_')}_" if len(groups) > 1 else "confusion_"
         for k in sorted({min(by_k), max(by_k)}):
             counts, names, n = by_k[k]
-            title = f"{PRETTY_NAMES.get(name, name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
+            title = f"{model_label(name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
             paths.append(plot_confusion(counts, names, Path(out_dir) / f"{stem}{k}touch.png", title))
     return paths
 
@@ -172,7 +186,7 @@ def plot_accuracy_by_touches(results: Iterable[Mapping[str, Any]], path: str | P
     groups: dict[str, list[Mapping[str, Any]]] = {}
     for r in check_results(results):
         if r["task"] == "classification":
-            groups.setdefault(str(r["name"]), []).append(r)
+            groups.setdefault(model_key(r), []).append(r)
     if not groups:
         return None
     fig, ax = plt.subplots(figsize=(9.0, 4.2))
@@ -186,7 +200,7 @@ def plot_accuracy_by_touches(results: Iterable[Mapping[str, Any]], path: str | P
             stats = [mean_std([100.0 * float(r[key][str(k)]) for r in runs if str(k) in r.get(key, {})]) for k in ks]
             mean = np.array([m for m, _ in stats])
             std = np.array([s for _, s in stats])
-            label = PRETTY_NAMES.get(name, name) + (" (another object's touches)" if key != "accuracy" else "")
+            label = model_label(name) + (" (another object's touches)" if key != "accuracy" else "")
             ax.plot(ks, mean, style, marker="o", color=colour, label=f"{label}, {len(runs)} run{'s' * (len(runs) > 1)}")
             ax.fill_between(ks, mean - std, mean + std, color=colour, alpha=0.15)
         classes = runs[0].get("classes")
@@ -221,7 +235,7 @@ def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
     cls = [r for r in check_results(results) if r["task"] == "classification"]
     groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
     for r in cls:  # runs on other touches or another split protocol are other rows, never averaged together
-        groups.setdefault((str(r["name"]), data_label(r)), []).append(r)
+        groups.setdefault((model_key(r), data_label(r)), []).append(r)
     several = len({data for _, data in groups}) > 1
     rows: list[list[str]] = []
     notes = []
@@ -229,7 +243,7 @@ def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
         for key, suffix in (("accuracy", ""), ("accuracy_other", ", another object's touches")):
             if key != "accuracy" and not any(isinstance(r.get(key), Mapping) for r in runs):
                 continue
-            cells = [PRETTY_NAMES.get(name, name) + (f" [{data}]" if several else "") + suffix]
+            cells = [model_label(name) + (f" [{data}]" if several else "") + suffix]
             counts = []
             for k in touches:
                 values = [100.0 * float(r[key][str(k)]) for r in runs if str(k) in (r.get(key) or {})]
