@@ -147,6 +147,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
             result["headings"] = int(run_cfg.model.headings)
     elif (result := getattr(model, "test_results", None)) is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
+    elif int(cfg.get("fusion_share_batches") or 0) > 0 and getattr(getattr(model, "net", None), "fusion", None):
+        result = {**result, "fusion_share": measure_fusion_share(model, datamodule, cfg)}
     result = {
         **result,
         "seed": run_cfg.get("seed"),
@@ -162,6 +164,27 @@ def _last_instead(ckpt: Path) -> Path | None:
     """The run's ``last.ckpt`` when ``ckpt`` is another (best) checkpoint of the same folder, else None."""
     last = ckpt.parent / "last.ckpt"
     return last if last.is_file() and last.resolve() != ckpt.resolve() else None
+
+
+def measure_fusion_share(model: L.LightningModule, datamodule: L.LightningDataModule, cfg: DictConfig) -> dict:
+    """The touches' share of a fusion model's visual features (:mod:`tvrecon.report.fusion_share`) over the first
+    ``cfg.fusion_share_batches`` test batches with the most touches evaluated; logged and returned."""
+    from itertools import islice
+
+    from tvrecon.report.fusion_share import fusion_share
+
+    k = max(int(t) for t in cfg.eval_touches)
+    share = fusion_share(model, islice(datamodule.test_dataloader(), int(cfg.fusion_share_batches)), k)
+    stages = ", ".join(
+        f"stage {j}: {100 * s['added_to_visual']:.2f}% of the visual features on {100 * s['pixels_reached']:.1f}% of "
+        f"the pixels"
+        for j, s in share["stages"].items()
+    )
+    log.info(
+        "fusion share with %d touches over %d test samples: %s; final mesh moved %.4f (mesh scale %.3f)",
+        k, share["samples"], stages, share["mesh_moved"], share["mesh_scale"],
+    )  # fmt: skip
+    return share
 
 
 def eval_split(cfg: DictConfig) -> str:

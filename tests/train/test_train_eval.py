@@ -126,10 +126,12 @@ def test_train_checkpoint_then_eval_writes_tables(tmp_path: Path) -> None:
     assert best.is_file() and (run / "checkpoints" / "last.ckpt").is_file()
     assert (run / "loss_curves.png").is_file()
 
-    ev = compose_config("eval", [f"run_dir={run}", "eval_touches=[2]", "export=true"], tmp_path / "eval")
-    result = evaluate(ev)
+    overrides = [f"run_dir={run}", "eval_touches=[2]", "export=true", "fusion_share_batches=1"]
+    result = evaluate(compose_config("eval", overrides, tmp_path / "eval"))
     [res] = result["results"]
     assert res["name"] == "smoke" and set(res["modes"]) == {"visual", "tv@2"}
+    share = res["fusion_share"]  # the Agg blocks' addition against the visual features, per stage
+    assert share["touches"] == 2 and share["samples"] > 0 and set(share["stages"]) == {"0", "1", "2", "3"}
     assert res["checkpoint"] == str(best)  # the best checkpoint is preferred over last.ckpt
     tables = tmp_path / "eval" / "tables"
     assert {p.name for p in tables.iterdir()} >= {"table3.md", "table3.csv", "table4.md", "table4.csv", "tables.md"}
