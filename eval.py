@@ -147,8 +147,11 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
             result["headings"] = int(run_cfg.model.headings)
     elif (result := getattr(model, "test_results", None)) is None:
         raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
-    elif int(cfg.get("fusion_share_batches") or 0) > 0 and getattr(getattr(model, "net", None), "fusion", None):
-        result = {**result, "fusion_share": measure_fusion_share(model, datamodule, cfg)}
+    elif int(cfg.get("fusion_share_batches") or 0) > 0:
+        if getattr(getattr(model, "net", None), "fusion", None) is not None:
+            result = {**result, "fusion_share": measure_fusion_share(model, datamodule, cfg)}
+        else:
+            log.info("fusion_share_batches: %s has no Agg blocks (not a fusion model); not measured", ckpt)
     result = {
         **result,
         "seed": run_cfg.get("seed"),
