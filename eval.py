@@ -33,6 +33,7 @@ from tvrecon.report.run import (  # noqa: E402
     report_tables,
     save_results,
 )
+from tvrecon.report.table_format import Table  # noqa: E402
 from tvrecon.report.tables import data_protocol  # noqa: E402
 from tvrecon.utils.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
@@ -133,25 +134,25 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
     model.load_state_dict(state["state_dict"])
-    split = eval_split(cfg)
-    with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
-        if split == "val":
-            logged = trainer.validate(model=model, datamodule=datamodule)
-        else:
-            trainer.test(model=model, datamodule=datamodule)
-    if split == "val":
+    if eval_split(cfg) == "val":
         # the validation split: for choosing evaluation settings without the test split (no paper tables)
+        with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
+            logged = trainer.validate(model=model, datamodule=datamodule)
         result = {"task": "validation", "name": run_cfg.get("experiment_name")}
         result["val"] = {str(k): float(v) for d in logged for k, v in d.items()}
         if run_cfg.model.get("headings") is not None:
             result["headings"] = int(run_cfg.model.headings)
-    elif (result := getattr(model, "test_results", None)) is None:
-        raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
-    elif int(cfg.get("fusion_share_batches") or 0) > 0:
-        if getattr(getattr(model, "net", None), "fusion", None) is not None:
-            result = {**result, "fusion_share": measure_fusion_share(model, datamodule, cfg)}
-        else:
-            log.info("fusion_share_batches: %s has no Agg blocks (not a fusion model); not measured", ckpt)
+    else:
+        with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
+            trainer.test(model=model, datamodule=datamodule)
+        result = getattr(model, "test_results", None)
+        if result is None:
+            raise RuntimeError(f"{type(model).__name__} produced no test_results for {ckpt}")
+        if int(cfg.get("fusion_share_batches") or 0) > 0:
+            if getattr(getattr(model, "net", None), "fusion", None) is not None:
+                result = {**result, "fusion_share": measure_fusion_share(model, datamodule, cfg)}
+            else:
+                log.info("fusion_share_batches: %s has no Agg blocks (not a fusion model); not measured", ckpt)
     result = {
         **result,
         "seed": run_cfg.get("seed"),
@@ -199,13 +200,11 @@ def eval_split(cfg: DictConfig) -> str:
 
 
 def validation_text(results: list[dict[str, Any]]) -> str:
-    """A markdown table of each run's validation metrics (``split=val``), one row a checkpoint."""
+    """Each run's validation metrics (``split=val``) as a Markdown table, one row a checkpoint."""
     keys = sorted({k for r in results for k in r.get("val", {})})
-    lines = ["| checkpoint | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
-    for r in results:
-        cells = [f"{r['val'][k]:.4f}" if k in r.get("val", {}) else "-" for k in keys]
-        lines.append(f"| {r['checkpoint']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    rows = [[str(r["checkpoint"])] + [f"{r['val'][k]:.4f}" if k in r.get("val", {}) else "-" for k in keys]
+            for r in results]  # fmt: skip
+    return Table("Validation split", ["checkpoint", *keys], rows).to_markdown()
 
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
