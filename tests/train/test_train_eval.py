@@ -52,6 +52,7 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         "tactile_only": "tactile_only",
         "touch_geometry": "touch_geometry",
         "touch_residual": "touch_geometry",
+        "touch_cascade": "touch_geometry",
     }.get(experiment, "fusion")
     assert net.mode == expected_mode
     if expected_mode == "visual_only":
@@ -59,8 +60,8 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         return
     if expected_mode == "touch_geometry":  # beyond the paper: no tactile branch, the deformer reads the patches
         assert net.reads_patches and not hasattr(net, "tactile") and model.hparams.patch_loss_weight > 0
-        residual = type(net.deformer).__name__ == "TouchResidualDeformer"
-        assert residual == (experiment == "touch_residual")
+        residual = type(net.deformer).__name__ in ("TouchResidualDeformer", "TouchCascadeDeformer")
+        assert residual == (experiment in ("touch_residual", "touch_cascade"))
         assert model.hparams.min_touches == (1 if residual else 0)  # the residual's visual path trains on every sample
         return
     fusion = net.fusion

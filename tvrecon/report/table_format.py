@@ -55,6 +55,7 @@ PRETTY_NAMES: dict[str, str] = {
     "touch_depth": "Ours + touch depth (extension)",
     "touch_geometry": "Touch geometry (beyond the paper)",
     "touch_residual": "Touch geometry as a correction of Pixel2Mesh (beyond the paper)",
+    "touch_cascade": "Touch geometry on the Pixel2Mesh answer (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
     "classify_paper_cpu": "Tactile classifier",
@@ -151,6 +152,7 @@ ROW_ORDER: tuple[str, ...] = (
     "touch_depth",
     "touch_geometry",
     "touch_residual",
+    "touch_cascade",
     "smoke",
 )
 
