@@ -9,15 +9,16 @@ Two earlier answers to "touch geometry answers a view alone worse than Pixel2Mes
   but it learned a small correction only (0.96x).
 
 Here the touch path is touch geometry's own deformer, block for block, started on the visual path's meshes instead of
-the ellipsoid. At stage ``s`` a :class:`~tvrecon.models.components.touch_geometry.TouchDeformationBlock` (the widths
-and block count of the visual path) reads at each touched vertex ``y = x_s + delta``:
+the ellipsoid. At stage ``s`` a :class:`~tvrecon.models.components.touch_geometry.TouchDeformationBlock` (by default
+the widths and block count of the visual path) reads at each touched vertex ``y = x_s + delta``:
 
     g_v = concat(h_touch (unpooled, stages > 0), h_visual, y_v, proj(f_p at y_v))   (paper eq. 13, two hiddens)
 
 plus the touch features of ``y`` injected before every G-ResNet block, and moves ``y`` by an offset (eq. 15) that
-starts at zero. The correction ``delta`` is carried to the next level by edge-midpoint unpooling. A sample without a
-contact point gets exactly the visual mesh; with ``detach_visual`` the visual path (backbone and Pixel2Mesh blocks) is
-trained by its own loss only, so with no touch the model answers what the visual-only baseline answers.
+starts at zero. The correction ``delta`` and ``h_touch`` go to the next level by edge-midpoint unpooling. The gate
+(a sample without a contact point gets exactly the visual mesh) and ``detach_visual`` (the visual path and the
+backbone learn from their own loss only, so with no touch the model answers what the visual-only baseline answers) are
+:class:`TouchResidualDeformer`'s.
 """
 
 from __future__ import annotations
@@ -29,18 +30,18 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.models.components.ellipsoid import unpool_features
-from tvrecon.models.components.gcn import MeshDeformer
 from tvrecon.models.components.touch_geometry import (
     FEATURES_PER_SCALE,
     TouchDeformationBlock,
     TouchPoints,
     touch_features,
 )
+from tvrecon.models.components.touch_residual import TouchResidualDeformer
 
 __all__ = ["TouchCascadeDeformer"]
 
 
-class TouchCascadeDeformer(MeshDeformer):
+class TouchCascadeDeformer(TouchResidualDeformer):
     """Pixel2Mesh deformer, then a touch-geometry deformer that moves each stage's visual mesh under the touches.
 
     Args:
@@ -52,8 +53,6 @@ class TouchCascadeDeformer(MeshDeformer):
         deformer_args: :class:`MeshDeformer`'s arguments (feature_channels, hidden, num_blocks, ...).
     """
 
-    reads_touch_points = True  # forward(features, K, image_size, touch: TouchPoints | None)
-
     def __init__(
         self,
         sigmas: Sequence[float] = (0.02, 0.08, 0.3),
@@ -62,20 +61,16 @@ class TouchCascadeDeformer(MeshDeformer):
         detach_visual: bool = True,
         **deformer_args: Any,
     ) -> None:
-        super().__init__(**deformer_args)  # the visual path first: its initial weights are the baseline's
-        if not sigmas or any(not float(s) > 0 for s in sigmas):
-            raise ValueError(f"sigmas must be positive length scales, got {list(sigmas)}")
+        super().__init__(sigmas, touch_hidden, touch_blocks, detach_visual, **deformer_args)
+        self._carry: Tensor | None = None  # the touch path's hidden feature of the stage before, in this forward
+
+    def _touch_path(self, hidden: int, blocks: int) -> nn.ModuleList:
+        """One :class:`TouchDeformationBlock` per stage with a zero offset conv (untrained: the visual meshes)."""
         first = self.stages[0]
-        visual_hidden, visual_blocks = first.conv_in.self_linear.out_features, len(first.blocks)
+        visual_hidden = first.conv_in.self_linear.out_features
         perceptual = first.conv_in.self_linear.in_features - 3
-        hidden = visual_hidden if touch_hidden is None else int(touch_hidden)
-        blocks = visual_blocks if touch_blocks is None else int(touch_blocks)
-        if hidden < 1 or blocks < 0:
-            raise ValueError(f"need touch_hidden >= 1 and touch_blocks >= 0, got {hidden} and {blocks}")
-        self.sigmas = [float(s) for s in sigmas]
-        self.detach_visual = bool(detach_visual)
         touch_channels = FEATURES_PER_SCALE * len(self.sigmas)
-        self.touch_stages = nn.ModuleList(
+        stages = nn.ModuleList(
             [
                 TouchDeformationBlock(
                     (hidden if s > 0 else 0) + visual_hidden + 3 + perceptual,
@@ -87,76 +82,33 @@ class TouchCascadeDeformer(MeshDeformer):
                 for s in range(self.num_stages)
             ]
         )
-        with torch.no_grad():  # zero offsets at the start: an untrained touch path leaves the visual meshes as they are
-            for block in self.touch_stages:
+        with torch.no_grad():
+            for block in stages:
                 block.conv_out.self_linear.weight.zero_()
                 block.conv_out.self_linear.bias.zero_()
                 block.conv_out.neighbour_linear.weight.zero_()
-        self._hidden: list[Tensor] = []  # the visual blocks' hidden features of the forward in progress
+        return stages
 
-    def _deform(
-        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
-    ) -> tuple[Tensor, Tensor]:
-        """The plain Pixel2Mesh block; its hidden feature is kept for the touch path."""
-        new_x, hidden = block(g, x, edges, neighbours)
-        self._hidden.append(hidden)
-        return new_x, hidden
+    def _touch_offset(self, s: int, h_visual: Tensor, y: Tensor, delta: Tensor, touch: TouchPoints) -> Tensor:
+        """Stage ``s``: g_v = concat(h_touch, h_visual, y_v, proj(f_p at y_v)) through touch geometry's block.
 
-    def forward(  # type: ignore[override]
-        self,
-        features: Sequence[Tensor],
-        K: Tensor,
-        image_size: tuple[int, int],
-        touch: TouchPoints | None = None,
-    ) -> dict[str, Any]:
-        """Deform the ellipsoid under the view, then move every stage's mesh under the touches.
-
-        Args:
-            features: float visual maps (B, C_j, h_j, w_j); K: (B, 3, 3); image_size: (H, W).
-            touch: camera-frame contact points (B, P, 3) with normals and mask, or None (no touch).
-
-        Returns:
-            as :meth:`MeshDeformer.forward` for the touched meshes (per stage ``verts`` (B, V_s, 3), ``verts_before``
-            the stage's input: the visual input plus the correction carried in), plus ``visual``: the visual path's
-            own output dict (what the model answers without a touch).
+        Args / Returns: as :meth:`TouchResidualDeformer._touch_offset`; (B, V_s, 3) float offset.
         """
-        self._hidden = []
-        try:
-            visual = super().forward(features, K, image_size)
-            hidden = self._hidden
-        finally:
-            self._hidden = []
-        out: dict[str, Any] = {k: list(v) for k, v in visual.items()}
-        out["visual"] = visual
-        if touch is None or not bool(touch.mask.any()):
-            return out  # no contact point in the batch: the visual path's answer
-        B = K.shape[0]
-        has = touch.mask.any(1).to(visual["verts"][0].dtype)[:, None, None]  # (B, 1, 1): samples with contact
-        maps = [f.detach() for f in features] if self.detach_visual else list(features)
-        out["verts"], out["verts_before"] = [], []
-        delta: Tensor | None = None
-        h_touch: Tensor | None = None
-        for s, block in enumerate(self.touch_stages):
-            x_before, x_after, h_vis = visual["verts_before"][s], visual["verts"][s], hidden[s]
-            if self.detach_visual:
-                x_before, x_after, h_vis = x_before.detach(), x_after.detach(), h_vis.detach()
-            if delta is None:
-                delta = torch.zeros_like(x_after)
-            else:
-                parent = self.template.parent_edges(s)
-                delta = unpool_features(delta, parent)
-                h_touch = unpool_features(h_touch, parent)
-            y = x_after + delta  # (B, V_s, 3): the visual stage's mesh with the correction carried in
-            pooled = self.pool(y, K, maps, image_size)  # (B, V_s, sum C): the image at the touched vertices
-            parts = [h_vis, y, pooled] if h_touch is None else [h_touch, h_vis, y, pooled]
-            new_y, h_touch = block(
-                torch.cat(parts, dim=-1),
-                y,
-                self.template.edges(s),
-                self._level_neighbours(s, B),
-                touch_features(y, touch, self.sigmas),
-            )
-            out["verts_before"].append(x_before + delta)
-            delta = delta + has * (new_y - y)
-            out["verts"].append(x_after + delta)
-        return out
+        assert self._view is not None, "TouchCascadeDeformer._touch_offset runs inside forward only"
+        features, K, image_size = self._view
+        if s == 0:
+            self._carry = None
+        elif self._carry is not None:
+            self._carry = unpool_features(self._carry, self.template.parent_edges(s))
+        pooled = self.pool(y, K, features, image_size)  # (B, V_s, sum C): the image at the touched vertices
+        parts = [h_visual, y, pooled] if self._carry is None else [self._carry, h_visual, y, pooled]
+        new_y, self._carry = self.touch_stages[s](
+            torch.cat(parts, dim=-1),
+            y,
+            self.template.edges(s),
+            self._level_neighbours(s, y.shape[0]),
+            touch_features(y, touch, self.sigmas),
+        )
+        if s == self.num_stages - 1:
+            self._carry = None  # nothing of this forward outlives it
+        return new_y - y

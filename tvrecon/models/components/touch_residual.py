@@ -75,6 +75,10 @@ class TouchResidualDeformer(MeshDeformer):
         detach_visual: the touch path reads the visual path's meshes and features without sending gradients back, so
             the visual path learns only from its own loss.
         deformer_args: :class:`MeshDeformer`'s arguments (feature_channels, hidden, num_blocks, ...).
+
+    Subclasses give the touch path other stages through :meth:`_touch_path` and :meth:`_touch_offset`
+    (:class:`~tvrecon.models.components.touch_cascade.TouchCascadeDeformer`); the visual path, the gate and the
+    carried correction stay here.
     """
 
     reads_touch_points = True  # forward(features, K, image_size, touch: TouchPoints | None)
@@ -82,27 +86,47 @@ class TouchResidualDeformer(MeshDeformer):
     def __init__(
         self,
         sigmas: Sequence[float] = (0.02, 0.08, 0.3),
-        touch_hidden: int = 128,
-        touch_blocks: int = 3,
+        touch_hidden: int | None = 128,
+        touch_blocks: int | None = 3,
         detach_visual: bool = True,
         **deformer_args: Any,
     ) -> None:
-        super().__init__(**deformer_args)
+        super().__init__(**deformer_args)  # the visual path first: its initial weights are the baseline's
         if not sigmas or any(not float(s) > 0 for s in sigmas):
             raise ValueError(f"sigmas must be positive length scales, got {list(sigmas)}")
-        if touch_hidden < 1 or touch_blocks < 0:
-            raise ValueError(f"need touch_hidden >= 1 and touch_blocks >= 0, got {touch_hidden} and {touch_blocks}")
+        first = self.stages[0]
+        hidden = first.conv_in.self_linear.out_features if touch_hidden is None else int(touch_hidden)
+        blocks = len(first.blocks) if touch_blocks is None else int(touch_blocks)
+        if hidden < 1 or blocks < 0:
+            raise ValueError(f"need touch_hidden >= 1 and touch_blocks >= 0, got {hidden} and {blocks}")
         self.sigmas = [float(s) for s in sigmas]
         self.detach_visual = bool(detach_visual)
+        self.touch_stages = self._touch_path(hidden, blocks)
+        self._hidden: list[Tensor] = []  # the visual blocks' hidden features of the forward in progress
+        self._view: tuple[list[Tensor], Tensor, tuple[int, int]] | None = None  # (features, K, image_size)
+
+    def _touch_path(self, hidden: int, blocks: int) -> nn.ModuleList:
+        """One :class:`TouchCorrectionBlock` per stage, reading (visual hidden, carried correction, touch features)."""
         visual_hidden = self.stages[0].conv_in.self_linear.out_features
         touch_channels = FEATURES_PER_SCALE * len(self.sigmas)
-        self.touch_stages = nn.ModuleList(
+        return nn.ModuleList(
             [
-                TouchCorrectionBlock(visual_hidden + 3 + touch_channels, touch_hidden, touch_blocks, self.aggregate)
+                TouchCorrectionBlock(visual_hidden + 3 + touch_channels, hidden, blocks, self.aggregate)
                 for _ in range(self.num_stages)
             ]
         )
-        self._hidden: list[Tensor] = []  # the visual blocks' hidden features of the forward in progress
+
+    def _touch_offset(self, s: int, h_visual: Tensor, y: Tensor, delta: Tensor, touch: TouchPoints) -> Tensor:
+        """Stage ``s``'s offset of the touched mesh.
+
+        Args:
+            s: stage; h_visual: (B, V_s, hidden) the visual block's hidden feature; y: (B, V_s, 3) the visual stage's
+                mesh plus ``delta``; delta: (B, V_s, 3) the correction carried in; touch: the contact points.
+
+        Returns: (B, V_s, 3) float offset (before the per-sample gate).
+        """
+        g = torch.cat([h_visual, delta, touch_features(y, touch, self.sigmas)], dim=-1)
+        return self.touch_stages[s](g, self.template.edges(s), self._level_neighbours(s, y.shape[0]))
 
     def _deform(
         self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
@@ -141,18 +165,22 @@ class TouchResidualDeformer(MeshDeformer):
         if touch is None or not bool(touch.mask.any()):
             return out  # no contact point in the batch: the visual path's answer
         has = touch.mask.any(1).to(visual["verts"][0].dtype)[:, None, None]  # (B, 1, 1): samples with contact
+        maps = [f.detach() if self.detach_visual else f for f in features]
+        self._view = (maps, K, image_size)  # read by _touch_offset during this forward only
         out["verts"], out["verts_before"] = [], []
         delta: Tensor | None = None
-        for s, block in enumerate(self.touch_stages):
-            x_before, x_after, h = visual["verts_before"][s], visual["verts"][s], hidden[s]
-            if self.detach_visual:
-                x_before, x_after, h = x_before.detach(), x_after.detach(), h.detach()
-            if delta is None:
-                delta = torch.zeros_like(x_after)
-            else:
-                delta = unpool_features(delta, self.template.parent_edges(s))
-            g = torch.cat([h, delta, touch_features(x_after + delta, touch, self.sigmas)], dim=-1)
-            out["verts_before"].append(x_before + delta)  # the stage's input: visual input + incoming correction
-            delta = delta + has * block(g, self.template.edges(s), self._level_neighbours(s, K.shape[0]))
-            out["verts"].append(x_after + delta)
+        try:
+            for s in range(self.num_stages):
+                x_before, x_after, h = visual["verts_before"][s], visual["verts"][s], hidden[s]
+                if self.detach_visual:
+                    x_before, x_after, h = x_before.detach(), x_after.detach(), h.detach()
+                if delta is None:
+                    delta = torch.zeros_like(x_after)
+                else:
+                    delta = unpool_features(delta, self.template.parent_edges(s))
+                out["verts_before"].append(x_before + delta)  # the stage's input: visual input + incoming correction
+                delta = delta + has * self._touch_offset(s, h, x_after + delta, delta, touch)
+                out["verts"].append(x_after + delta)
+        finally:
+            self._view = None
         return out
