@@ -36,7 +36,7 @@ from tvrecon.models.components.touch_geometry import (
     TouchPoints,
     touch_features,
 )
-from tvrecon.models.components.touch_residual import TouchResidualDeformer
+from tvrecon.models.components.touch_residual import TouchResidualDeformer, zero_offset
 
 __all__ = ["TouchCascadeDeformer"]
 
@@ -82,11 +82,8 @@ class TouchCascadeDeformer(TouchResidualDeformer):
                 for s in range(self.num_stages)
             ]
         )
-        with torch.no_grad():
-            for block in stages:
-                block.conv_out.self_linear.weight.zero_()
-                block.conv_out.self_linear.bias.zero_()
-                block.conv_out.neighbour_linear.weight.zero_()
+        for block in stages:
+            zero_offset(block.conv_out)
         return stages
 
     def _touch_offset(self, s: int, h_visual: Tensor, y: Tensor, delta: Tensor, touch: TouchPoints) -> Tensor:

@@ -31,7 +31,17 @@ from tvrecon.models.components.ellipsoid import unpool_features
 from tvrecon.models.components.gcn import GraphConv, GResBlock, MeshDeformer
 from tvrecon.models.components.touch_geometry import FEATURES_PER_SCALE, TouchPoints, touch_features
 
-__all__ = ["TouchCorrectionBlock", "TouchResidualDeformer"]
+__all__ = ["TouchCorrectionBlock", "TouchResidualDeformer", "zero_offset"]
+
+
+def zero_offset(conv: GraphConv) -> GraphConv:
+    """``conv`` with all weights zeroed, in place: an offset conv that starts at zero, so an untrained touch path
+    leaves the visual mesh as it is."""
+    with torch.no_grad():
+        conv.self_linear.weight.zero_()
+        conv.self_linear.bias.zero_()
+        conv.neighbour_linear.weight.zero_()
+    return conv
 
 
 class TouchCorrectionBlock(nn.Module):
@@ -48,11 +58,7 @@ class TouchCorrectionBlock(nn.Module):
         super().__init__()
         self.conv_in = GraphConv(in_features, hidden, aggregate)
         self.blocks = nn.ModuleList([GResBlock(hidden, aggregate) for _ in range(num_blocks)])
-        self.conv_out = GraphConv(hidden, 3, aggregate)
-        with torch.no_grad():  # zero offset at the start: the untrained touch path leaves the visual mesh as it is
-            self.conv_out.self_linear.weight.zero_()
-            self.conv_out.self_linear.bias.zero_()
-            self.conv_out.neighbour_linear.weight.zero_()
+        self.conv_out = zero_offset(GraphConv(hidden, 3, aggregate))
 
     def forward(self, g: Tensor, edges: Tensor, neighbours: Tensor) -> Tensor:
         """Args: g (B, V, C_in) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse.
