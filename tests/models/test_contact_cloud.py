@@ -24,9 +24,10 @@ def test_masked_max_mean_ignores_masked_and_empty_rows() -> None:
     torch.testing.assert_close(out, torch.tensor([[3.0, 5.0, 2.0, 1.5], [0.0, 0.0, 0.0, 0.0]]))
 
 
-def test_shapes_and_invariances() -> None:
+@pytest.mark.parametrize("patch_tokens", [False, True])
+def test_shapes_and_invariances(patch_tokens: bool) -> None:
     torch.manual_seed(0)
-    clf = ContactCloudClassifier(num_classes=5, num_touches=3, points_per_touch=8).eval()
+    clf = ContactCloudClassifier(num_classes=5, num_touches=3, points_per_touch=8, patch_tokens=patch_tokens).eval()
     tactile, points, normals, mask = _touches()
     out = clf(tactile, points, normals, mask)
     assert out.shape == (2, 5)
@@ -39,9 +40,10 @@ def test_shapes_and_invariances() -> None:
     torch.testing.assert_close(clf(torch.zeros_like(tactile), points, normals, mask), out)
 
 
-def test_masked_touches_and_points_are_absent() -> None:
+@pytest.mark.parametrize("patch_tokens", [False, True])
+def test_masked_touches_and_points_are_absent(patch_tokens: bool) -> None:
     torch.manual_seed(0)
-    clf = ContactCloudClassifier(num_classes=4, num_touches=3, points_per_touch=8).eval()
+    clf = ContactCloudClassifier(num_classes=4, num_touches=3, points_per_touch=8, patch_tokens=patch_tokens).eval()
     tactile, points, normals, mask = _touches(B=1)
     touch_mask = torch.tensor([[True, True, False]])
     junk = points.clone()
@@ -69,6 +71,52 @@ def test_gradient_reaches_points_and_the_image_branch() -> None:
     assert clf.trunk is not None and clf.trunk.conv1.weight.grad.abs().sum() > 0
     assert (tactile.grad.abs().sum(dim=(2, 3, 4)) > 0).all()  # every touch's image
     assert points.grad[mask].abs().sum() > 0 and points.grad[~mask].abs().sum() == 0  # only contact points
+
+
+def test_patch_tokens_see_a_touch_without_contact_as_absent_and_carry_gradient() -> None:
+    torch.manual_seed(0)
+    clf = ContactCloudClassifier(num_classes=4, num_touches=3, points_per_touch=8, patch_tokens=True).eval()
+    tactile, points, normals, mask = _touches(B=1)
+    mask[0, 2] = False  # the third touch felt nothing: no token, no points
+    junk = points.clone()
+    junk[0, 2] = 50.0
+    torch.testing.assert_close(
+        clf(tactile, junk, normals, mask), clf(tactile[:, :2], points[:, :2], normals[:, :2], mask[:, :2])
+    )
+    clf(tactile, points, normals, mask).logsumexp(1).sum().backward()
+    assert clf.patch_mlp is not None and clf.patch_mlp[0].weight.grad.abs().sum() > 0
+    assert clf.token_mlp is not None and clf.token_mlp[0].weight.grad.abs().sum() > 0
+
+
+def test_patch_tokens_tell_apart_clouds_that_differ_only_in_which_touch_felt_what() -> None:
+    """Four small clusters of contact points, the same in every sample; class 0 touches them as {1, 2} and {3, 4},
+    class 1 as {1, 3} and {2, 4}. The plain PointNet pools all points at once, so it scores both classes the same
+    (the control); the patch tokens read each touch's own patch and fit them."""
+    torch.manual_seed(0)
+    B, N, half = 8, 2, 6
+    corners = torch.tensor([[0.4, 0.0, 0.0], [0.0, 0.4, 0.0], [-0.4, 0.0, 0.0], [0.0, -0.3, 0.2]])
+    clusters = corners[:, None] + 0.03 * torch.randn(4, half, 3)  # (4, half, 3)
+    y = torch.tensor([0, 1] * (B // 2))
+    groups = {0: ((0, 1), (2, 3)), 1: ((0, 2), (1, 3))}
+    points = torch.stack(
+        [torch.stack([torch.cat([clusters[i] for i in touch]) for touch in groups[c]]) for c in y.tolist()]
+    )  # (B, N, 2 half, 3)
+    normals = torch.nn.functional.normalize(points, dim=-1)
+    mask = torch.ones(B, N, 2 * half, dtype=torch.bool)
+    tactile = torch.zeros(B, N, 3, 8, 8)
+    plain = ContactCloudClassifier(num_classes=2, num_touches=N, points_per_touch=2 * half).eval()
+    logits = plain(tactile, points, normals, mask)
+    torch.testing.assert_close(logits[0], logits[1])
+    clf = ContactCloudClassifier(
+        num_classes=2, num_touches=N, points_per_touch=2 * half, dropout=0.0, patch_tokens=True
+    )
+    opt = torch.optim.Adam(clf.parameters(), lr=3e-3)
+    for _ in range(100):
+        loss = torch.nn.functional.cross_entropy(clf(tactile, points, normals, mask), y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert (clf.eval()(tactile, points, normals, mask).argmax(1) == y).all()
 
 
 @pytest.mark.parametrize("per_touch", [1, 64])

@@ -44,6 +44,7 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
             assert "patch_points" in model.touch_inputs
             assert model.net.points_per_touch == (1 if experiment == "classify_contact_point" else 64)
             assert (model.net.trunk is not None) == (experiment == "classify_contact_cloud_images")
+            assert (model.net.patch_mlp is not None) == (experiment == "classify_contact_patches")
         return
     assert type(datamodule).__name__ == "ReconstructionDataModule"
     net = model.net

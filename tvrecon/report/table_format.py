@@ -63,6 +63,7 @@ PRETTY_NAMES: dict[str, str] = {
     "classify_contact_cloud": "Contact-cloud classifier (beyond the paper)",
     "classify_contact_point": "Contact points only (control)",
     "classify_contact_cloud_images": "Contact cloud + tactile images (beyond the paper)",
+    "classify_contact_patches": "Contact cloud + patch tokens (beyond the paper)",
 }
 
 

@@ -14,6 +14,13 @@ library's canonical heading.
 shared ResNet-18 per tactile image, mean + max pooled) to the pooled cloud features before the head, for the shear and
 fine texture the cloud does not hold. ``points_per_touch=1`` keeps one contact point per touch: the where-it-touched
 control (position and surface normal only, no patch shape).
+
+``patch_tokens=True`` also encodes every touch's patch in its own frame first (PointNet++'s set abstraction, Qi et
+al. 2017b, with the touches as the groups): its points centred on the patch's own mean through a second shared MLP,
+max-pooled over the patch, then joined with where the patch lies (its mean, relative to the cloud's) and its mean
+normal into one token per touch; the tokens are max + mean pooled beside the points. The plain PointNet sees each
+point alone and pools all touches at once, so the shape of one patch (two tines side by side, a smooth bowl, a key's
+teeth) reaches it only mixed with every other patch's.
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ class ContactCloudClassifier(nn.Module):
         dropout: dropout in the head.
         image_features: add the pooled features of a shared ResNet-18 over the tactile images.
         pretrained: cached ImageNet weights for that ResNet-18 if available (never downloads).
+        patch_tokens: add one token per touch from its patch encoded in its own frame (see the module docstring).
     """
 
     #: batch keys the classification module hands to :meth:`forward`, per touch, in this order
@@ -59,6 +67,7 @@ class ContactCloudClassifier(nn.Module):
         dropout: float = 0.3,
         image_features: bool = False,
         pretrained: bool = False,
+        patch_tokens: bool = False,
     ) -> None:
         super().__init__()
         if num_classes < 2:
@@ -76,6 +85,13 @@ class ContactCloudClassifier(nn.Module):
         # 67% at 10 touches in 1,500 steps, with it 76% (lr 3e-3; the docs' issue-12 section has the runs)
         self.point_mlp = nn.Sequential(*_block(6, 64), *_block(64, 128), *_block(128, width))
         pooled = 2 * width
+        self.patch_mlp: nn.Module | None = None
+        self.token_mlp: nn.Module | None = None
+        if patch_tokens:
+            # a narrower MLP than the points' (128 features): it runs over the same points, so it doubles a step's cost
+            self.patch_mlp = nn.Sequential(*_block(6, 64), *_block(64, 128))
+            self.token_mlp = nn.Sequential(*_block(128 + 6, width), *_block(width, width))
+            pooled += 2 * width
         self.trunk: nn.Module | None = None
         if image_features:
             trunk, _ = load_resnet18(pretrained)
@@ -117,7 +133,34 @@ class ContactCloudClassifier(nn.Module):
         centre = (cloud.points * m).sum(1, keepdim=True) / m.sum(1, keepdim=True).clamp_min(1.0)  # (B, 1, 3)
         x = torch.cat([cloud.points - centre, cloud.normals], dim=-1)  # (B, P, 6)
         pooled = [masked_max_mean(self.point_mlp(x), cloud.mask)]  # (B, 2 width)
+        if self.patch_mlp is not None and self.token_mlp is not None:
+            pooled.append(self._patch_tokens(cloud.points, cloud.normals, cloud.mask, centre, B, N))
         if self.trunk is not None:
             feats = self.trunk(tactile.flatten(0, 1)).view(B, N, -1)  # (B, N, 512)
             pooled.append(masked_max_mean(feats, touch_mask))
         return self.head(torch.cat(pooled, dim=1))
+
+    def _patch_tokens(self, points: Tensor, normals: Tensor, mask: Tensor, centre: Tensor, B: int, N: int) -> Tensor:
+        """One token per touch from its patch in its own frame, max + mean pooled over the touches that felt.
+
+        Args:
+            points, normals: (B, N * m, 3) float, the selected contact points of N touches (m each, touch-major).
+            mask: (B, N * m) bool, True for a real contact point.
+            centre: (B, 1, 3) float, the cloud's mean.
+
+        Returns:
+            (B, 2 width) float.
+        """
+        assert self.patch_mlp is not None and self.token_mlp is not None
+        m = points.shape[1] // N
+        pts, nrm, msk = points.view(B, N, m, 3), normals.view(B, N, m, 3), mask.view(B, N, m)
+        w = msk.to(pts.dtype)[..., None]  # (B, N, m, 1)
+        count = w.sum(2).clamp_min(1.0)  # (B, N, 1)
+        mean = (pts * w).sum(2) / count  # (B, N, 3): where the patch lies
+        normal = (nrm * w).sum(2) / count  # (B, N, 3)
+        local = torch.cat([pts - mean[:, :, None], nrm], dim=-1)  # (B, N, m, 6)
+        shape = masked_max_mean(self.patch_mlp(local).flatten(0, 1), msk.flatten(0, 1))  # (B N, 2 width)
+        shape = shape[:, : shape.shape[1] // 2].view(B, N, -1)  # (B, N, 128): the patch's max
+        felt = msk.any(2)  # (B, N): touches without contact have no token
+        tokens = self.token_mlp(torch.cat([shape, mean - centre, normal], dim=-1))  # (B, N, width)
+        return masked_max_mean(tokens, felt)
