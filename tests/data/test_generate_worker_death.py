@@ -119,3 +119,24 @@ def test_ctrl_c_with_workers_exits_130_with_the_resume_hint_in_one_line(tmp_path
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == f"python -m tvrecon.data.generate: {RESUME_HINT}"
     assert "Traceback" not in err and "KeyboardInterrupt" not in err
+
+
+class _Exited:
+    """A finished worker process as :func:`tvrecon.data.generate._dead_worker_message` reads it."""
+
+    def __init__(self, pid: int, exitcode: int) -> None:
+        self.pid, self.exitcode = pid, exitcode
+
+    def join(self, timeout: float | None = None) -> None:
+        pass
+
+
+def test_the_message_names_the_killed_worker_before_one_that_failed_as_the_pool_broke() -> None:
+    from tvrecon.data.generate import _dead_worker_message
+
+    # listed first: a survivor that exited with an error as the pool's queues closed under it, then the one SIGTERMed
+    procs = [_Exited(11, 1), _Exited(12, -signal.SIGTERM), _Exited(13, -signal.SIGKILL)]
+    msg = _dead_worker_message(procs, "train")  # type: ignore[arg-type]
+    assert "(pid 13) of split 'train' was killed by SIGKILL" in msg and RESUME_HINT in msg
+    assert "(pid 11) of split 'train' exited with status 1" in _dead_worker_message(procs[:2], "train")  # type: ignore[arg-type]
+    assert "(pid 12) of split 'train' was killed by SIGTERM" in _dead_worker_message(procs[1:2], "train")  # type: ignore[arg-type]

@@ -198,7 +198,10 @@ def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str) -> str:
     for p in procs:
         p.join(timeout=1)
     dead = [p for p in procs if p.exitcode is not None and p.exitcode != 0]
-    killed = [p for p in dead if p.exitcode != -signal.SIGTERM] or dead  # the pool SIGTERMs the others itself
+    # the pool SIGTERMs the others itself, and a survivor may exit with an error of its own as the queues close under
+    # it (seen once under load: the message named that worker, not the one killed): a signal first, then an error
+    signalled = [p for p in dead if p.exitcode is not None and p.exitcode < 0 and p.exitcode != -signal.SIGTERM]
+    killed = signalled or [p for p in dead if p.exitcode != -signal.SIGTERM] or dead
     if killed and killed[0].exitcode is not None and killed[0].exitcode < 0:
         how = f"was killed by {signal.Signals(-killed[0].exitcode).name}"
         if killed[0].exitcode == -signal.SIGKILL:
