@@ -25,9 +25,11 @@ collider, in ``setup_threads`` threads; ``--setup-threads 1,auto`` compares them
 threads with 16 spawned set-up processes, ``EIPSimulator(setup_processes=16)``, GPU only: the CPU clock here is the
 process's own), timed once after the calls; it is part of ``s/call``. ``thr`` is the set-up's threads, or ``pN``.
 
-Ops and syncs per step (``--count-batch``, default 4, eager only): the aten ops dispatched during one ``press_batch``
-call, counted with a ``TorchDispatchMode``, less those of the same call stopped after one step, per further step;
-also without the ops that only make views (no kernel on a GPU). A host sync is an op whose result the host must
+Ops and syncs per step (``--count-batch``, default 4; ``--count-modes eager,compiled``): the aten ops dispatched during
+one ``press_batch`` call, counted with a ``TorchDispatchMode``, less those of the same call stopped after one step, per
+further step; also without the ops that only make views (no kernel on a GPU). The dispatch mode runs compiled code
+eagerly, so the compiled press is counted from a profiler trace instead (CPU only: one op per fused inductor kernel
+call plus the aten ops left outside the kernels; compiled afresh with a record per kernel, minutes on one thread). A host sync is an op whose result the host must
 wait for: ``_local_scalar_dense`` (``.item()``, ``bool(tensor)``), ``nonzero``, ``masked_select``, ``unique*``,
 ``repeat_interleave`` with tensor repeats and boolean-mask indexing.
 On a GPU each op is a kernel launch and each sync a stall. CUDA graphs are not measured: the press loop checks its
@@ -37,6 +39,7 @@ stop rule on the host every step, so the step cannot be captured yet.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import resource
@@ -57,7 +60,7 @@ from tvrecon.data.touches import sample_touches  # noqa: E402
 from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
 from tvrecon.sim.mpm.solver import MLSMPM  # noqa: E402
 from tvrecon.sim.press.loop import PressLoop  # noqa: E402
-from tvrecon.utils.op_counter import per_step  # noqa: E402
+from tvrecon.utils.op_counter import OpCounter, ProfiledCounter, kernel_profile, per_step  # noqa: E402
 
 
 def paper_scene(device: str) -> tuple[SensorConfig, PressConfig, trimesh.Trimesh, torch.Tensor, torch.Tensor, dict]:
@@ -115,18 +118,31 @@ def run_one(sim: EIPSimulator, mesh, pos, dirs, strength: dict, b: int, device: 
 
 
 def count_ops(
-    sensor, press, mesh, pos, dirs, strength: dict, b: int, device: torch.device, chunks: bool = True
+    sensor,
+    press,
+    mesh,
+    pos,
+    dirs,
+    strength: dict,
+    b: int,
+    device: torch.device,
+    chunks: bool = True,
+    compiled: bool = False,
 ) -> dict:
-    """Aten ops and host syncs per loop step of one eager ``press_batch`` of ``b`` touches
+    """Aten ops and host syncs per loop step of one ``press_batch`` of ``b`` touches
     (:func:`tvrecon.utils.op_counter.per_step`: the set-up and read-out, paid once per call, cancel).
+
+    ``compiled=True`` counts the compiled press (``EIPSimulator(compile=True)``) from a profiler trace
+    (:class:`~tvrecon.utils.op_counter.ProfiledCounter`: each fused inductor kernel call is one op, as is each aten op
+    left in eager code or called by a compiled graph's wrapper), compiled on the CPU with a profiler record per
+    kernel (:func:`~tvrecon.utils.op_counter.kernel_profile`, a compile of its own: minutes on one thread).
 
     ``chunks=False`` counts the GPU's layout on the CPU: the stencil passes in one launch instead of cache-sized
     particle chunks (``MLSMPM.chunk_size``; off on a GPU anyway) and the polar decomposition's convergence test left
     to the loop's read (``MLSMPM.deferred_polar``), the contact's kept candidate list (``MLSMPM.contact_skin``), the
     node-major P2G scatter (``MLSMPM.node_major_p2g``) and one host read per 4 steps (``PressLoop.read_every``), as on
     CUDA by default."""
-    sim = EIPSimulator(sensor, press, device=device, compile=False)
-    sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # warm caches (placement, SDF) like a real run
+    sim = EIPSimulator(sensor, press, device=device, compile=compiled)
 
     def run(max_steps: int | None) -> int:
         limit = {} if max_steps is None else {"max_steps": max_steps}
@@ -139,7 +155,11 @@ def count_ops(
         PressLoop.read_every = 4
     try:
         layout = "cpu chunks" if chunks and device.type == "cpu" else "one pass, deferred polar, list, 4 steps a read"
-        return {"batch": b, "layout": layout, **per_step(run)}
+        with kernel_profile() if compiled else contextlib.nullcontext():
+            # warm caches (placement, SDF) like a real run; compiled: every graph, and its recompiles, compiled here
+            sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)
+            counts = per_step(run, ProfiledCounter if compiled else OpCounter)
+        return {"batch": b, "layout": layout, "mode": "compiled" if compiled else "eager", **counts}
     finally:
         MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, MLSMPM.node_major_p2g = saved[:4]
         PressLoop.read_every = saved[4]
@@ -167,6 +187,11 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="timed calls per (scene, mode, batch)")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--count-batch", type=int, default=4, help="batch of the op/sync count (0: skip)")
+    parser.add_argument(
+        "--count-modes",
+        default="eager",
+        help="comma-separated modes of the op/sync count: eager (dispatch mode), compiled (profiler trace; CPU only)",
+    )
     parser.add_argument("--out", type=Path, default=None, help="write every figure to this JSON file")
     parser.add_argument(
         "--setup-threads",
@@ -189,8 +214,10 @@ def main() -> None:
     batches = [int(b) for b in args.batches.split(",")] if args.batches else [2**k for k in range(11 if on_cuda else 4)]
     procs = [int(n) for n in args.setup_processes.split(",")]
     if any(procs) and not on_cuda:
-        parser.error("--setup-processes is timed in wall seconds on a GPU; on the CPU (process CPU time, which does "
-                     "not see the workers) compare set-ups with benchmarks/bench_setup_pool.py")
+        parser.error(
+            "--setup-processes is timed in wall seconds on a GPU; on the CPU (process CPU time, which does "
+            "not see the workers) compare set-ups with benchmarks/bench_setup_pool.py"
+        )
     name = torch.cuda.get_device_name(device) if on_cuda else f"CPU, {args.threads} thread(s)"
     print(f"torch {torch.__version__}, {name}; time = {'wall' if on_cuda else 'process CPU'} seconds")
     results: dict = {"device": name, "torch": torch.__version__, "runs": [], "counts": []}
@@ -203,16 +230,22 @@ def main() -> None:
         )
         if args.count_batch:
             layouts = (True, False) if device.type == "cpu" else (True,)
-            for chunks in layouts:
-                c = count_ops(sensor, press, mesh, pos, dirs, strength, args.count_batch, device, chunks)
-                results["counts"].append({"scene": scene, **c})
-                _write(args.out, results)
-                print(
-                    f"  eager, batch {c['batch']}, {c['layout']}: {c['ops_per_step']:.0f} aten ops "
-                    f"({c['launch_ops_per_step']:.0f} not views) and {c['syncs_per_step']:.1f} host syncs per step "
-                    f"({c['steps']} steps; {c['ops_outside_steps']:.0f} ops per call outside the steps); "
-                    f"syncs {c['syncs_by_op']}; most ops {c['top_ops']}"
-                )
+            for mode in args.count_modes.split(","):
+                if mode == "compiled" and device.type != "cpu":
+                    print("  compiled counts are read from inductor's CPU kernel records: skipped on", device)
+                    continue
+                for chunks in layouts:
+                    c = count_ops(
+                        sensor, press, mesh, pos, dirs, strength, args.count_batch, device, chunks, mode == "compiled"
+                    )
+                    results["counts"].append({"scene": scene, **c})
+                    _write(args.out, results)
+                    print(
+                        f"  {mode}, batch {c['batch']}, {c['layout']}: {c['ops_per_step']:.0f} aten ops "
+                        f"({c['launch_ops_per_step']:.0f} not views) and {c['syncs_per_step']:.1f} host syncs per step "
+                        f"({c['steps']} steps; {c['ops_outside_steps']:.0f} ops per call outside the steps); "
+                        f"syncs {c['syncs_by_op']}; most ops {c['top_ops']}"
+                    )
         print(
             f"  {'mode':9s} {'batch':>5s} {'first s':>8s} {'s/call':>8s} {'touches/s':>10s} {'p-steps/s':>10s} "
             f"{'steps':>6s} {'peak MiB':>9s} {'setup s':>8s} {'thr':>4s} {'loop p-s/s':>10s}"

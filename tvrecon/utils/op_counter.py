@@ -5,18 +5,26 @@ whose result the host must wait for are counted again as syncs: ``_local_scalar_
 ``bool(t)``), ``nonzero``, ``masked_select``, ``unique*``, ``repeat_interleave`` with tensor repeats, boolean-mask
 indexing, and ``Tensor.tolist`` (a copy to the host that dispatches no aten op on the CPU). It runs on the CPU, so CI
 guards the GPU shape of a loop without a GPU. :func:`per_step` turns two counted runs of a loop into counts per step.
+
+A dispatch mode makes dynamo run ``torch.compile``'d code eagerly, so it counts the decomposition of a compiled
+kernel, not what runs. :class:`ProfiledCounter` counts from a ``torch.profiler`` trace instead: the aten ops called at
+the top level (eager code and a compiled graph's wrapper: its allocations and extern kernels), plus one op per fused
+inductor kernel call, which the trace shows only for code compiled with
+``torch._inductor.config.cpp.enable_kernel_profile = True`` (CPU kernels; :func:`kernel_profile` sets it).
 """
 
 from __future__ import annotations
 
+import contextlib
+import re
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
-__all__ = ["SYNC_OPS", "VIEW_OPS", "OpCounter", "StepCounts", "per_step"]
+__all__ = ["SYNC_OPS", "VIEW_OPS", "OpCounter", "ProfiledCounter", "StepCounts", "kernel_profile", "per_step"]
 
 #: ops that only make a new view of existing memory: no kernel on a GPU
 VIEW_OPS = frozenset(
@@ -68,21 +76,98 @@ class OpCounter(TorchDispatchMode):
         return func(*args, **(kwargs or {}))
 
 
+#: the name of one fused inductor CPU kernel call in a profiler trace (``graph_3_cpp_fused_add_mul_0``)
+KERNEL_EVENT = re.compile(r"^graph_\d+_cpp_fused_")
+#: the key under which :class:`ProfiledCounter` counts fused kernel calls in ``ops``
+FUSED_KERNEL = "inductor_kernel"
+
+
+@contextlib.contextmanager
+def kernel_profile() -> Iterator[None]:
+    """Compile CPU code inside this block with a profiler record per fused kernel call (what
+    :class:`ProfiledCounter` counts); inductor keys its cache on the setting, so this is a compile of its own."""
+    import torch._inductor.config as inductor_config
+
+    with inductor_config.patch({"cpp.enable_kernel_profile": True}):
+        yield
+
+
+class ProfiledCounter:
+    """What a piece of torch code runs, compiled kernels included, counted from a CPU ``torch.profiler`` trace.
+
+    ``ops``: aten ops by name that were not called from inside another aten op (what eager code and a compiled
+    graph's wrapper launch), plus ``inductor_kernel`` for each fused kernel call (seen only for code compiled under
+    :func:`kernel_profile`); ``kernels``: those calls by kernel name. ``syncs``: the host-syncing ops of
+    :data:`SYNC_OPS` at any depth (a boolean-mask ``index`` and a tensor-repeats ``repeat_interleave`` show their
+    inner ``nonzero`` / ``_local_scalar_dense``) and ``Tensor.tolist``. Same interface as :class:`OpCounter` for
+    :func:`per_step`.
+    """
+
+    def __init__(self) -> None:
+        self.ops: Counter[str] = Counter()
+        self.syncs: Counter[str] = Counter()
+        self.kernels: Counter[str] = Counter()
+        self._tolist: Callable[..., Any] | None = None
+        self._profile: torch.profiler.profile | None = None
+
+    def __enter__(self) -> ProfiledCounter:
+        tolist = self._tolist = torch.Tensor.tolist
+        syncs = self.syncs
+
+        def counted_tolist(t: torch.Tensor) -> Any:
+            if t.numel():
+                syncs["tolist"] += 1
+            return tolist(t)
+
+        torch.Tensor.tolist = counted_tolist  # type: ignore[method-assign]
+        self._profile = torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU])
+        self._profile.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        assert self._profile is not None
+        try:
+            self._profile.__exit__(*exc)
+        finally:
+            torch.Tensor.tolist = self._tolist  # type: ignore[method-assign]
+        for event in self._profile.events():
+            name = event.name
+            if KERNEL_EVENT.match(name):
+                self.kernels[name] += 1
+                self.ops[FUSED_KERNEL] += 1
+            elif name.startswith("aten::"):
+                op = name[len("aten::") :]
+                if op in SYNC_OPS:
+                    self.syncs[op] += 1
+                if not _called_from_an_op(event):
+                    self.ops[op] += 1
+
+
+def _called_from_an_op(event: Any) -> bool:
+    """Whether a profiler event ran inside an aten op (then its parent op is what was launched)."""
+    parent = event.cpu_parent
+    while parent is not None:
+        if parent.name.startswith("aten::"):
+            return True
+        parent = parent.cpu_parent
+    return False
+
+
 class StepCounts(dict):
     """Per-step counts of a loop (a dict, for JSON): ``steps``, ``ops_per_step``, ``launch_ops_per_step`` (not
     views), ``syncs_per_step``, ``ops_outside_steps``, ``syncs_by_op`` and ``top_ops``."""
 
 
-def per_step(run: Callable[[int | None], int]) -> StepCounts:
+def per_step(run: Callable[[int | None], int], counter: type[OpCounter | ProfiledCounter] = OpCounter) -> StepCounts:
     """Ops and syncs per step of a loop: ``run(max_steps)`` runs it (None: to its end) and returns its step count.
 
     Per step = (the whole run - the run stopped after one step) / (its steps - 1): what is paid once per run (set-up,
-    read-out) cancels.
+    read-out) cancels. ``counter``: :class:`OpCounter` (eager code) or :class:`ProfiledCounter` (compiled code).
     """
-    one = OpCounter()
+    one = counter()
     with one:
         run(1)
-    full = OpCounter()
+    full = counter()
     with full:
         steps = run(None)
     n = max(steps - 1, 1)
