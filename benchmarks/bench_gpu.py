@@ -29,9 +29,9 @@ Ops and syncs per step (``--count-batch``, default 4; ``--count-modes eager,comp
 one ``press_batch`` call, counted with a ``TorchDispatchMode``, less those of the same call stopped after one step, per
 further step; also without the ops that only make views (no kernel on a GPU). The dispatch mode runs compiled code
 eagerly, so the compiled press is counted from a profiler trace instead (CPU only: one op per fused inductor kernel
-call plus the aten ops left outside the kernels; compiled afresh with a record per kernel, minutes on one thread). A host sync is an op whose result the host must
-wait for: ``_local_scalar_dense`` (``.item()``, ``bool(tensor)``), ``nonzero``, ``masked_select``, ``unique*``,
-``repeat_interleave`` with tensor repeats and boolean-mask indexing.
+call plus the aten ops left outside the kernels; compiled afresh with a record per kernel, minutes on one thread).
+A host sync is an op whose result the host must wait for: ``_local_scalar_dense`` (``.item()``, ``bool(tensor)``),
+``nonzero``, ``masked_select``, ``unique*``, ``repeat_interleave`` with tensor repeats and boolean-mask indexing.
 On a GPU each op is a kernel launch and each sync a stall. CUDA graphs are not measured: the press loop checks its
 stop rule on the host every step, so the step cannot be captured yet.
 """

@@ -313,14 +313,18 @@ class MLSMPM:
         its fixed steps whose convergence the caller reads (``pending_polar_ok``) or, without ``defer_checks``, this
         step reads once (instead of once per iteration)."""
         self.pending_polar_ok = None
-        deferred = self.deferred_polar if self.deferred_polar is not None else F.device.type == "cuda"
-        if not deferred or self.exact_polar:
+        if not self._deferred_polar(F.device) or self.exact_polar:
             return polar_decomposition(F)
         R, ok = polar_decomposition_fixed(F)
         if self.defer_checks:
             self.pending_polar_ok = ok
             return R
         return R if bool(ok) else polar_decomposition(F)
+
+    def _deferred_polar(self, device: torch.device) -> bool:
+        """Whether the polar decomposition runs its fixed steps with the convergence test left to a read
+        (``deferred_polar``; None = on CUDA)."""
+        return self.deferred_polar if self.deferred_polar is not None else device.type == "cuda"
 
     def _plan_layout(self, state: ParticleState, B: int, block: int | None) -> None:
         """The next step's base nodes and scene bounds from ``state`` (the step's result), so that its block dims come
@@ -383,12 +387,24 @@ class MLSMPM:
     ) -> ParticleState:
         """One no-grad step of the compiled backend (:func:`tvrecon.sim.mpm.compiled.step.fused_step`); stores its
         force, transfer and particle contact forces as :meth:`_step` does."""
-        o_int = self._constants(state.x.dtype, state.x.device)[2]
-        self._next_layout, self.pending_bounds = None, None  # the compiled stencil reads its own bounds
+        x = state.x
+        o_int = self._constants(x.dtype, x.device)[2]
+        plan, self._next_layout, self.pending_bounds = self._next_layout, None, None
+        # the GPU's layout (deferred_polar, e.g. on CUDA) with the caller's deferred reads: the block dims come with
+        # the last step's read (planned below), the polar's convergence with this one's; elsewhere the compiled
+        # stencil reads its own bounds and the step its polar flag (on the CPU a read is a function return)
+        deferred = self.defer_checks and self._deferred_polar(x.device)
+        planned = plan is not None and plan.D is not None and plan.x is x and plan.version == x._version
         out = fused_step(
             self._kernels, self._fields, state, colliders, hand_velocity, alpha, B, block,
-            self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(state.x.device), o_int, self._mesh_stack,
-        )
+            self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(x.device), o_int, self._mesh_stack,
+            dims=plan.D if planned else None, padded=planned and plan.padded,
+            defer_polar=deferred, exact_polar=self.exact_polar,
+        )  # fmt: skip
+        self.last_dims = out.dims
+        self.pending_polar_ok = out.polar_ok
+        if deferred and (state.batch is None or block is not None):
+            self._plan_layout(out.state, B, block)
         self.last_force, self._last_transfer = out.force, out.transfer
         mark_compile_cache_warm()  # once per process: compile="auto" takes the warm threshold from now on
         self._speed_check(out.vmax)

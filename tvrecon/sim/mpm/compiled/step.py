@@ -65,6 +65,8 @@ class FusedStep(NamedTuple):
     transfer: Transfer  # the step's transfer, for ``MLSMPM.last_particle_force``
     particle_force: Tensor | None  # (P, 3) particle contact's force per particle (contact="particle"), else None
     vmax: Tensor  # 0-dim: the fastest grid node's largest velocity component, for ``MLSMPM``'s speed check
+    dims: list[int]  # the block dims the step used (``MLSMPM.last_dims``)
+    polar_ok: Tensor | None  # 0-dim bool: the fixed-step polar converged (``defer_polar``: left to the caller's read)
 
 
 def _grid_update(
@@ -106,12 +108,23 @@ def fused_step(
     chunk: int,
     o_int: Tensor,
     stack: MeshStackCache | None = None,
+    dims: list[int] | None = None,
+    padded: bool = False,
+    defer_polar: bool = False,
+    exact_polar: bool = False,
 ) -> FusedStep:
     """One no-grad step with the compiled ``kernels``; the collider ``fields`` remember the colliders' sdf on the
     block grid between steps. ``state`` ... ``block`` as :meth:`tvrecon.sim.mpm.solver.MLSMPM._step`; ``cfg``: the
     solver's config (grid, damping, friction, contact), ``dt`` its step, ``mu`` / ``lam`` its Lame parameters,
     ``chunk`` the particles per compiled P2G call (0 = all), ``o_int`` the (27, 3) int64 stencil offsets, ``stack``
-    the solver's stacked mesh colliders of the particle contact (None: searched scene by scene)."""
+    the solver's stacked mesh colliders of the particle contact (None: searched scene by scene).
+
+    The eager step's deferred checks (``MLSMPM.defer_checks``, the GPU's layout): ``dims`` are the block dims read
+    by the caller with the last step's read (None: read here, one host sync), ``padded`` when they were given with a
+    margin instead (``MLSMPM.trust_next``: the indices are clamped into the block, as ``grid.block_index`` does);
+    ``defer_polar`` leaves the fixed-step polar's convergence to the caller (``FusedStep.polar_ok``) instead of a read
+    here; ``exact_polar`` takes the iterating polar decomposition (the caller's rerun of a step that did not
+    converge)."""
     k = kernels
     x = state.x
     P = x.shape[0]
@@ -121,10 +134,14 @@ def fused_step(
     xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
     if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index compiled
         base_t, fx, w, lo_f, hi_f = k("stencil", xt, inv_dx, B)
-        D = block_dims(lo_f.T, hi_f.T, B)
+        D = block_dims(lo_f.T, hi_f.T, B) if dims is None else list(dims)
         lo_t = lo_f.to(torch.int64)  # (3, B)
-        dims = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
-        lin = k("index", base_t, lo_t, dims)
+        strides = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
+        if padded:  # dims taken on trust: a base node outside the block is moved to its edge (the caller reruns)
+            top = torch.tensor(D, dtype=base_t.dtype, device=device)[:, None, None] - 3.0  # (3, 1, 1)
+            low = lo_f[:, :, None]  # (3, B, 1)
+            base_t = torch.minimum(torch.maximum(base_t.view(3, B, -1), low), low + top).view(3, -1)
+        lin = k("index", base_t, lo_t, strides)
         lo = lo_t.T
     else:
         base_t, fx, w, _, _ = k("stencil", xt, inv_dx, 1)
@@ -133,9 +150,15 @@ def fused_step(
     st = Stencil(fx.T, w, lo, lin, D, n_nodes, chunk if chunk > 0 else P)
 
     stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
-    Rt, converged = k("polar", Ft, stop)
-    if not bool(converged):  # rare: a particle needs more Newton steps (or F is singular: eager raises)
+    polar_ok = None
+    if exact_polar:
         Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
+    else:
+        Rt, converged = k("polar", Ft, stop)
+        if defer_polar:
+            polar_ok = converged
+        elif not bool(converged):  # rare: a particle needs more Newton steps (or F is singular: eager raises)
+            Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
     mu, lam = float(mu), float(lam)
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
@@ -168,7 +191,7 @@ def fused_step(
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
     xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
-    return FusedStep(_cf_state(state, xn, vn, Cn, Fn), force, transfer, pforce, vmax)
+    return FusedStep(_cf_state(state, xn, vn, Cn, Fn), force, transfer, pforce, vmax, D, polar_ok)
 
 
 def _particle_contact(
