@@ -17,6 +17,16 @@ def _touches(B: int = 2, N: int = 3, Q: int = 16, seed: int = 0) -> tuple[torch.
     return tactile, points, normals, mask
 
 
+def _fit(clf: ContactCloudClassifier, inputs: tuple[torch.Tensor, ...], y: torch.Tensor, steps: int) -> None:
+    """Adam at 3e-3 on the cross-entropy of one batch, ``steps`` times."""
+    opt = torch.optim.Adam(clf.parameters(), lr=3e-3)
+    for _ in range(steps):
+        loss = torch.nn.functional.cross_entropy(clf(*inputs), y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+
 def test_masked_max_mean_ignores_masked_and_empty_rows() -> None:
     feats = torch.tensor([[[1.0, -2.0], [3.0, 5.0], [100.0, 100.0]], [[7.0, 7.0], [8.0, 8.0], [9.0, 9.0]]])
     mask = torch.tensor([[True, True, False], [False, False, False]])
@@ -110,12 +120,7 @@ def test_patch_tokens_tell_apart_clouds_that_differ_only_in_which_touch_felt_wha
     clf = ContactCloudClassifier(
         num_classes=2, num_touches=N, points_per_touch=2 * half, dropout=0.0, patch_tokens=True
     )
-    opt = torch.optim.Adam(clf.parameters(), lr=3e-3)
-    for _ in range(100):
-        loss = torch.nn.functional.cross_entropy(clf(tactile, points, normals, mask), y)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+    _fit(clf, (tactile, points, normals, mask), y, steps=100)
     assert (clf.eval()(tactile, points, normals, mask).argmax(1) == y).all()
 
 
@@ -133,11 +138,6 @@ def test_overfits_shapes_that_only_the_geometry_tells_apart(per_touch: int) -> N
     mask = torch.ones(B, N, Q, dtype=torch.bool)
     tactile = torch.zeros(B, N, 3, 8, 8)
     clf = ContactCloudClassifier(num_classes=4, num_touches=N, points_per_touch=per_touch, dropout=0.0)
-    opt = torch.optim.Adam(clf.parameters(), lr=3e-3)
-    for _ in range(150):
-        loss = torch.nn.functional.cross_entropy(clf(tactile, points, normals, mask), y)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+    _fit(clf, (tactile, points, normals, mask), y, steps=150)
     acc = (clf(tactile, points, normals, mask).argmax(1) == y).float().mean().item()
     assert acc == 1.0, f"train accuracy {acc}"

@@ -37,6 +37,20 @@ SYNC_OPS = frozenset(
 )
 
 
+def _count_tolist(syncs: Counter[str]) -> Callable[..., Any]:
+    """Make ``Tensor.tolist`` of a non-empty tensor count as a sync in ``syncs`` (a copy to the host that dispatches
+    no aten op on the CPU); returns the original, to put back."""
+    tolist = torch.Tensor.tolist
+
+    def counted_tolist(t: torch.Tensor) -> Any:
+        if t.numel():
+            syncs["tolist"] += 1
+        return tolist(t)
+
+    torch.Tensor.tolist = counted_tolist  # type: ignore[method-assign]
+    return tolist
+
+
 class OpCounter(TorchDispatchMode):
     """Counts aten ops (by overload packet name) in ``ops`` and the host-syncing ones among them in ``syncs``."""
 
@@ -47,15 +61,7 @@ class OpCounter(TorchDispatchMode):
         self._tolist: Callable[..., Any] | None = None
 
     def __enter__(self) -> OpCounter:
-        tolist = self._tolist = torch.Tensor.tolist
-        syncs = self.syncs
-
-        def counted_tolist(t: torch.Tensor) -> Any:
-            if t.numel():
-                syncs["tolist"] += 1
-            return tolist(t)
-
-        torch.Tensor.tolist = counted_tolist  # type: ignore[method-assign]
+        self._tolist = _count_tolist(self.syncs)
         return super().__enter__()
 
     def __exit__(self, *exc: object) -> None:
@@ -111,15 +117,7 @@ class ProfiledCounter:
         self._profile: torch.profiler.profile | None = None
 
     def __enter__(self) -> ProfiledCounter:
-        tolist = self._tolist = torch.Tensor.tolist
-        syncs = self.syncs
-
-        def counted_tolist(t: torch.Tensor) -> Any:
-            if t.numel():
-                syncs["tolist"] += 1
-            return tolist(t)
-
-        torch.Tensor.tolist = counted_tolist  # type: ignore[method-assign]
+        self._tolist = _count_tolist(self.syncs)
         self._profile = torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU])
         self._profile.__enter__()
         return self
