@@ -159,7 +159,7 @@ class MLSMPM:
         # the caller reads False it runs the step again with exact_polar (the iterating loop, which raises on a bad F)
         self.pending_polar_ok: Tensor | None = None
         self.exact_polar = False
-        self.last_dims: list[int] | None = None  # the block dims of the last eager step
+        self.last_dims: list[int] | None = None  # the block dims of the last step (eager or compiled)
 
     @property
     def compiled(self) -> bool:
