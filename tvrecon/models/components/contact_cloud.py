@@ -159,8 +159,8 @@ class ContactCloudClassifier(nn.Module):
         mean = (pts * w).sum(2) / count  # (B, N, 3): where the patch lies
         normal = (nrm * w).sum(2) / count  # (B, N, 3)
         local = torch.cat([pts - mean[:, :, None], nrm], dim=-1)  # (B, N, m, 6)
-        shape = masked_max_mean(self.patch_mlp(local).flatten(0, 1), msk.flatten(0, 1))  # (B N, 2 width)
-        shape = shape[:, : shape.shape[1] // 2].view(B, N, -1)  # (B, N, 128): the patch's max
         felt = msk.any(2)  # (B, N): touches without contact have no token
+        shape = self.patch_mlp(local).masked_fill(~msk[..., None], float("-inf")).amax(2)  # (B, N, 128): the max
+        shape = torch.where(felt[..., None], shape, torch.zeros_like(shape))  # no -inf into the token MLP
         tokens = self.token_mlp(torch.cat([shape, mean - centre, normal], dim=-1))  # (B, N, width)
         return masked_max_mean(tokens, felt)
