@@ -8,7 +8,8 @@ guards the GPU shape of a loop without a GPU. :func:`per_step` turns two counted
 
 A dispatch mode makes dynamo run ``torch.compile``'d code eagerly, so it counts the decomposition of a compiled
 kernel, not what runs. :class:`ProfiledCounter` counts from a ``torch.profiler`` trace instead: the aten ops called at
-the top level (eager code and a compiled graph's wrapper: its allocations and extern kernels), plus one op per fused
+the top level (eager code and a compiled graph's wrapper: its extern kernels; its allocations bypass the
+dispatcher), plus one op per fused
 inductor kernel call, which the trace shows only for code compiled with
 ``torch._inductor.config.cpp.enable_kernel_profile = True`` (CPU kernels; :func:`kernel_profile` sets it).
 """
