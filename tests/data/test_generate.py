@@ -6,7 +6,7 @@ import pytest
 from tiny_press import TINY_PRESS
 
 from tvrecon.data.generate import main, pregenerate, shard_indices
-from tvrecon.data.generate_args import parse_shard
+from tvrecon.data.generate_args import parse_shard, parse_splits
 from tvrecon.data.presets import compose_preset
 
 ARGS = [
@@ -65,6 +65,19 @@ def test_rank_from_environment(monkeypatch):
     assert shard_indices(6) == [1, 3, 5]
 
 
+def test_splits_comma_or_list():
+    """``splits=val,test`` and Hydra's list form ``splits=[val,test]`` name the same splits; a wrong one lists those
+    configured (a GPU session lost its device minutes to ``[val`` passed through as a split's name)."""
+    avail = ["train", "val", "test"]
+    assert parse_splits("val,test", avail) == ["val", "test"]
+    assert parse_splits("[val, test]", avail) == ["val", "test"]
+    assert parse_splits("['test']", avail) == ["test"]
+    with pytest.raises(ValueError, match="unknown split 'tset'.*train, val, test"):
+        parse_splits("[val,tset]", avail)
+    with pytest.raises(ValueError, match="no split named"):
+        parse_splits("[]", avail)
+
+
 def test_bad_arguments(tmp_path: Path):
     with pytest.raises(ValueError, match="i/n"):
         parse_shard("3")
@@ -74,6 +87,8 @@ def test_bad_arguments(tmp_path: Path):
         main(["preset=nope"])
     with pytest.raises(ValueError, match="key=value"):
         main(["tiny"])
+    with pytest.raises(ValueError, match="unknown split 'nope'"):
+        main(["preset=cls_tiny", "splits=[test,nope]", f"cache_dir={tmp_path}"])
     from hydra.utils import instantiate
 
     ds = instantiate(compose_preset("cls_tiny", ["cache_dir=null"])).make_dataset("train")

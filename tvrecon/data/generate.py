@@ -9,13 +9,14 @@ Usage::
     python -m tvrecon.data.generate preset=paper workers=2 compile=false  # force the eager step (default: auto)
 
 Arguments are ``key=value``: ``preset`` (a YAML name in ``configs/data``, default ``small``), ``splits``
-(comma-separated, default all configured), ``workers`` (processes, default all cores), ``shard=i/n`` (or
-``--shard i/n``), ``compile`` (``true``/``false``/``auto``: the presses' fused kernels; short for the data-config
-override ``press.compile=...`` of ``PressConfig.compile``, which the worker processes receive with the config;
-readings equal the eager ones to float32 round-off and the cache key does not change. The presets' ``auto`` compiles
-in each worker that presses enough touches to pay the compile back: 500 on a CPU with a C++ compiler, 100 once the
-compile cache ``<cache_dir>/torch_compile`` is warm, never on CUDA; the log says what it chose); everything else is a
-Hydra override of the data config (``cache_dir=...``, ``train.num_samples=8``).
+(comma-separated or a list, ``[val,test]``; default all configured), ``workers`` (processes, default all cores),
+``shard=i/n`` (or ``--shard i/n``), ``compile`` (``true``/``false``/``auto``: the presses' fused kernels; short for
+the data-config override ``press.compile=...`` of ``PressConfig.compile``, which the worker processes receive with
+the config; readings equal the eager ones to float32 round-off and the cache key does not change. The presets'
+``auto`` compiles in each worker that presses enough touches to pay the compile back: 500 small-pad touches on a CPU
+with a C++ compiler, 100 once the compile cache ``<cache_dir>/torch_compile`` is warm, 75,000 on CUDA (about 4,800 of
+the authors' pad); the log says what it chose); everything else is a Hydra override of the data config
+(``cache_dir=...``, ``train.num_samples=8``).
 Under a launcher that sets ``RANK``/``LOCAL_RANK`` and ``WORLD_SIZE`` (Lightning, torchrun, a cluster array job),
 each rank takes its own share of the shard, so a cluster generates in parallel.
 
@@ -67,7 +68,7 @@ from tqdm.auto import tqdm
 from tvrecon.data.cache import cache_key
 from tvrecon.data.cache_export import export_entries
 from tvrecon.data.cache_housekeeping import remove_stale_tmp
-from tvrecon.data.generate_args import OPTION_KEYS, parse_shard
+from tvrecon.data.generate_args import OPTION_KEYS, parse_shard, parse_splits
 from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.touch_report import contact_report
 from tvrecon.sim.mpm.compiled.policy import AUTO
@@ -367,7 +368,7 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
     cfg = compose_preset(opts.get("preset", "small"), overrides)
     dm = instantiate(cfg, _convert_="all")
     shard = parse_shard(opts.get("shard", "0/1"))
-    splits = opts["splits"].split(",") if opts.get("splits") else dm.available_splits()
+    splits = parse_splits(opts["splits"], dm.available_splits()) if opts.get("splits") else dm.available_splits()
     results = []
     cache = getattr(dm, "cache_dir", None)
     print(f"cache: {Path(cache).expanduser().resolve() if cache else 'disabled (cache_dir=null)'}", flush=True)

@@ -3,7 +3,7 @@ command and its ``--multirun`` launcher, :mod:`tvrecon.data.generate_launcher`).
 
 from __future__ import annotations
 
-__all__ = ["OPTION_KEYS", "parse_shard"]
+__all__ = ["OPTION_KEYS", "parse_shard", "parse_splits"]
 
 #: the ``key=value`` arguments of the command itself; every other one is an override of the data config
 OPTION_KEYS = ("preset", "splits", "workers", "shard", "compile", "export")
@@ -18,3 +18,18 @@ def parse_shard(text: str) -> tuple[int, int]:
     if not (n >= 1 and 0 <= i < n):
         raise ValueError(f"shard i/n needs n >= 1 and 0 <= i < n, got {text!r}")
     return i, n
+
+
+def parse_splits(text: str, available: list[str]) -> list[str]:
+    """``"train,test"`` or ``"[train,test]"`` (Hydra's list syntax, as ``configs/generate.yaml`` writes a list that is
+    not a sweep) -> ``["train", "test"]``, in the order given, each one of ``available``; ValueError naming the
+    configured splits otherwise."""
+    names = [s.strip().strip("'\"") for s in str(text).strip().removeprefix("[").removesuffix("]").split(",")]
+    names = [s for s in names if s]
+    unknown = [s for s in names if s not in available]
+    if not names or unknown:
+        raise ValueError(
+            f"splits={text!r}: {'no split named' if not names else 'unknown split ' + ', '.join(map(repr, unknown))}; "
+            f"this preset has {', '.join(available)} (give them comma-separated, e.g. splits={','.join(available[:2])})"
+        )
+    return names
