@@ -86,8 +86,9 @@ class PressConfig:
             (default): the job decides (:func:`tvrecon.sim.mpm.compiled.policy.resolve_compile`): ``generate`` and
             the datamodules compile on a CPU with a C++ compiler when a process presses enough touches to pay back its
             compile (500 touches of the ``small`` pad, or 100 with a warm compile cache; a touch of another pad counts
-            as ``policy.touch_work``); a single press, CUDA and small jobs stay eager. Steps that
-            need autograd always run eager.
+            as ``policy.touch_work``), and on CUDA past 75,000 of them (about 4,800 touches of the authors' pad, the
+            break-even measured on an H100); a single press and small jobs stay eager. Steps that need autograd always
+            run eager.
 
     The earlier default press (grid-node collider, threshold in the press's own cells) is
     ``PressConfig(contact="grid", threshold_grid=None)`` (CLI: ``--contact grid --threshold-grid 0``).

@@ -15,8 +15,13 @@ compiles from 33 touches cold (break-even measured 16) and 7 warm (1).
 - **CPU with a C++ compiler:** ``"auto"`` compiles when the process presses at least :data:`AUTO_MIN_TOUCHES_COLD`
   touches, or :data:`AUTO_MIN_TOUCHES_WARM` when this version of the kernels is already in the compile cache (a
   marker file written after a process's first compiled step).
-- **CUDA:** eager. The compiled step was measured no faster than the eager one on an H100 (2.92 vs 3.65 touches/s at
-  batch 64, ``benchmarks/README.md``), and the CUDA graphs it would need are not built yet.
+- **CUDA:** ``"auto"`` compiles when the process presses at least :data:`AUTO_MIN_TOUCHES_CUDA` reference touches
+  (about 4,800 of the authors' pad). Measured on an H100 (``benchmarks/README.md``, 2026-11-27, thirteenth session;
+  the paper scene at batch 64, ``bench_gpu.py``): the compiled loop 18.9 ms a touch against the eager loop's 37.3
+  (2.29e8 against 1.16e8 particle-steps/s), its first call 86.6 s longer than a timed one (an empty compile cache): a
+  break-even of 4,700 authors' touches. The warm cache's compile was not timed on a GPU, so CUDA keeps this one
+  threshold. A generation job's workers press their share each (16 workers: ~340 touches of ``cls_paper`` each):
+  eager; one process pressing a whole preset: compiled.
 - A job that does not know its size (a single ``EIPSimulator.press``) resolves with the touches of that call: eager.
 
 The compile cache: :func:`use_compile_cache` points inductor's ``TORCHINDUCTOR_CACHE_DIR`` at ``torch_compile/`` of
@@ -37,6 +42,7 @@ import torch
 __all__ = [
     "AUTO",
     "AUTO_MIN_TOUCHES_COLD",
+    "AUTO_MIN_TOUCHES_CUDA",
     "AUTO_MIN_TOUCHES_WARM",
     "CACHE_ENV",
     "CACHE_SUBDIR",
@@ -58,6 +64,9 @@ AUTO = "auto"
 AUTO_MIN_TOUCHES_COLD = 500
 #: the same with this version of the kernels already in the compile cache (break-even 76 measured)
 AUTO_MIN_TOUCHES_WARM = 100
+#: CUDA: reference touches per process from which ``"auto"`` compiles (H100: 86.6 s compile / 18.4 ms saved per
+#: authors' touch = 4,700 authors' touches x 15.5 = 73,000 reference touches; the cache's warmth not measured there)
+AUTO_MIN_TOUCHES_CUDA = 75_000
 #: the reference touch of the thresholds: the ``small`` preset's 31 x 31 x 5 pad (particles) on the 64 grid
 REF_PARTICLES, REF_GRID = 31 * 31 * 5, 64
 #: inductor's cache folder variable (read by torch at each compile, so setting it before the first one is enough)
@@ -186,17 +195,22 @@ def resolve_compile(
     if isinstance(setting, bool):
         return setting, "as configured"
     dev = torch.device(device)
+    counted = touches * float(work)
+    what = f"{touches} touches"
+    if work != 1.0:
+        what += f" x {float(work):.3g} = {counted:.0f} small-pad touches"
+    if dev.type == "cuda":
+        need = AUTO_MIN_TOUCHES_CUDA
+        if counted >= need:
+            return True, f"auto on cuda: {what} in this process >= {need} (the compile's break-even on an H100)"
+        return False, f"auto on cuda: {what} in this process < {need} (the compile's break-even on an H100)"
     if dev.type != "cpu":
-        return False, f"auto on {dev.type}: the eager step (the compiled one was not faster there)"
+        return False, f"auto on {dev.type}: the eager step (the compiled one was not measured there)"
     if cpp_compiler() is None:
         return False, "auto: no C++ compiler found (set $CXX or install g++)"
     warm = compile_cache_warm(compile_cache_dir(cache_root))
     need = AUTO_MIN_TOUCHES_WARM if warm else AUTO_MIN_TOUCHES_COLD
     cache_state = "warm" if warm else "empty"
-    counted = touches * float(work)
-    what = f"{touches} touches"
-    if work != 1.0:
-        what += f" x {float(work):.3g} = {counted:.0f} small-pad touches"
     if counted >= need:
         return True, f"auto: {what} in this process >= {need} ({cache_state} compile cache)"
     return False, f"auto: {what} in this process < {need} ({cache_state} compile cache)"
