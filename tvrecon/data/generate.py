@@ -199,10 +199,15 @@ def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str) -> str:
     for p in procs:
         p.join(timeout=1)
     dead = [p for p in procs if p.exitcode is not None and p.exitcode != 0]
-    # the pool SIGTERMs the others itself, and a survivor may exit with an error of its own as the queues close under
-    # it (seen once under load: the message named that worker, not the one killed): a signal first, then an error
-    signalled = [p for p in dead if p.exitcode is not None and p.exitcode < 0 and p.exitcode != -signal.SIGTERM]
-    killed = signalled or [p for p in dead if p.exitcode != -signal.SIGTERM] or dead
+
+    # the pool SIGTERMs the others itself, and a survivor may die of its own as the queues close under it, with an
+    # error or a signal (seen under load: the message named that worker, not the one killed). SIGKILL only comes from
+    # outside (the OOM killer, kill -9): it first, then another signal, then an error, then SIGTERM
+    def rank(p: mp.process.BaseProcess) -> int:
+        code = p.exitcode
+        return 0 if code == -signal.SIGKILL else 3 if code == -signal.SIGTERM else 1 if code < 0 else 2
+
+    killed = sorted(dead, key=rank)  # stable: the pool's order within a rank
     if killed and killed[0].exitcode is not None and killed[0].exitcode < 0:
         how = f"was killed by {signal.Signals(-killed[0].exitcode).name}"
         if killed[0].exitcode == -signal.SIGKILL:
