@@ -11,7 +11,8 @@ The fixture was rewritten on purpose when the presets moved to the paper's touch
 the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon-data-5``). ``press.collider_refine: 2``
 was then added to ``press/eip_cpu`` (the object's table at the authors' spacing, so that thin parts are felt on the 64
 grid): the presets on that block (``small``, ``cls_paper_cpu``, ``cls_sweep_cpu`` and their experiments) gained the key
-in both fixtures, and their cache keys changed with it.
+in both fixtures, and their cache keys changed with it. ``tvrecon-data-6`` (the distance table over distinct surface
+samples) changed every key and no value.
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update

@@ -1,12 +1,13 @@
 """Capped unsigned distance from the lattice nodes of a region to a mesh surface (the size of MeshCollider's sdf).
 
-Nearest of surface samples (spacing dx/2; scipy cKDTree, 4 neighbours within the cap), refined to the exact
-distance to the faces of those samples. Two shortcuts that leave every value as it was (bit for bit):
-
-- nodes that cannot have a sample within the cap (a distance transform of the nodes nearest to the samples, less
-  half a cell diagonal) are not queried: the tree would have found nothing for them, and a query's
-  answer for one point does not depend on the other points queried;
-- a face found by two of a node's 4 samples is measured once (the minimum over the same set of faces).
+Nearest of the distinct surface samples (spacing dx/2; scipy cKDTree, 4 neighbours within the cap), refined to the
+exact distance to every face that holds one of those 4 points. ``surface_samples`` gives each triangle its own
+lattice, so a vertex shared by k faces is k copies of one point (on the paper scene 80% of the samples): a search
+over the samples themselves could find 4 copies of one vertex from 4 of its faces and miss the face that holds the
+node's nearest point (1-4% of the nodes read up to 0.13 cells too far before 2026-11-27; ``CACHE_VERSION`` 6).
+Copies are merged first, each distinct point keeps the faces it came from, and a face reached through two points is
+measured once. Nodes that cannot have a sample within the cap (a distance transform of the nodes nearest to the
+samples, less half a cell diagonal) are not queried: the tree would have found nothing for them.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import trimesh
 from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
-__all__ = ["maybe_near", "surface_distance"]
+__all__ = ["distinct_samples", "maybe_near", "point_triangle_distance", "surface_distance"]
 
 
 def maybe_near(pts: np.ndarray, lo_i: np.ndarray, dims: np.ndarray, dx: float, cap: float) -> np.ndarray:
@@ -44,6 +45,60 @@ def maybe_near(pts: np.ndarray, lo_i: np.ndarray, dims: np.ndarray, dx: float, c
     return (edt <= cap / dx + 0.5 * np.sqrt(3.0) + 0.01).reshape(-1)
 
 
+def point_triangle_distance(tris: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Euclidean distance from each point to its triangle (Ericson, Real-Time Collision Detection 5.1.5: the
+    Voronoi region of the closest feature), vectorised.
+
+    Args:
+        tris: (K, 3, 3) float64 triangles. q: (K, 3) float64 points.
+
+    Returns:
+        (K,) float64. A degenerate (zero-area) triangle is measured by ``trimesh.triangles.closest_point``.
+    """
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    ab, ac = b - a, c - a
+    ap, bp, cp = q - a, q - b, q - c
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = va + vb + vc
+        res = a + ab * (vb / den)[:, None] + ac * (vc / den)[:, None]  # inside the face
+        # the edges, then the vertices (a vertex region lies inside its edges' tests: it is applied last)
+        for m, p0, e, t in (
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a, ab, d1 / (d1 - d3)),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a, ac, d2 / (d2 - d6)),
+            ((va <= 0) & (d4 >= d3) & (d5 >= d6), b, c - b, (d4 - d3) / ((d4 - d3) + (d5 - d6))),
+        ):
+            res[m] = p0[m] + e[m] * t[m, None]
+    for m, v in (((d1 <= 0) & (d2 <= 0), a), ((d3 >= 0) & (d4 <= d3), b), ((d6 >= 0) & (d5 <= d6), c)):
+        res[m] = v[m]
+    bad = ~np.isfinite(res).all(1)
+    if bad.any():  # a zero-area triangle: no interior, its edges overlap
+        res[bad] = trimesh.triangles.closest_point(tris[bad], q[bad])
+    return np.linalg.norm(res - q, axis=1)
+
+
+def distinct_samples(pts: np.ndarray, fid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Merge the exact copies among surface samples.
+
+    Args:
+        pts: (S, 3) float64 samples. fid: (S,) int64 face of each sample.
+
+    Returns:
+        points (M, 3) distinct, and the faces of each point as ``faces[starts[m] : starts[m] + counts[m]]``:
+        starts (M,), counts (M,), faces (S,) int64.
+    """
+    order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
+    sp = pts[order]
+    first = np.ones(len(sp), dtype=bool)
+    first[1:] = (sp[1:] != sp[:-1]).any(1)
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.append(starts, len(sp)))
+    return sp[starts], starts, counts, fid[order]
+
+
 def surface_distance(
     nodes: np.ndarray, lo_i: np.ndarray, dims: np.ndarray, surface: trimesh.Trimesh | None, dx: float, cap: float
 ) -> tuple[np.ndarray, int]:
@@ -67,20 +122,25 @@ def surface_distance(
     if len(pts) == 0:
         return dist, 0
     near = np.flatnonzero(maybe_near(pts, lo_i, dims, dx, cap))
+    uniq, starts, counts, faces_of = distinct_samples(pts, fid)
     # nodes farther than the cap only need "far": the bound keeps the query fast
-    sd, si = cKDTree(pts).query(nodes[near], k=4, distance_upper_bound=cap)
+    sd, si = cKDTree(uniq).query(nodes[near], k=4, distance_upper_bound=cap)
     found = np.isfinite(sd[:, 0])
     close, sd, si = near[found], sd[found], si[found]
-    # exact point-triangle distance to the faces of the 4 nearest samples (the samples only find them); entries
-    # without a sample (inf) and faces already measured for the node are skipped
-    cand = fid[np.minimum(si, len(pts) - 1)]  # (C, 4)
-    use = np.isfinite(sd)
-    for j in range(1, 4):
-        use[:, j] &= ~(cand[:, j : j + 1] == cand[:, :j]).any(1)
-    r, j = np.nonzero(use)
-    q = nodes[close[r]]
-    exact = np.full(cand.shape, np.inf)
-    tris = np.asarray(surface.triangles)[cand[r, j]]
-    exact[r, j] = np.linalg.norm(trimesh.triangles.closest_point(tris, q) - q, axis=1)
-    dist[close] = np.minimum(exact.min(1), cap)
+    if len(close) == 0:
+        return dist, len(pts)
+    # every face of the 4 nearest distinct points (entries without a point, inf, skipped), each (node, face) once,
+    # measured exactly: the points only find the faces
+    ok = np.isfinite(sd).reshape(-1)
+    point = np.where(ok, si.reshape(-1), 0)
+    n = np.where(ok, counts[point], 0)
+    row = np.repeat(np.arange(len(point)) // 4, n)
+    face = faces_of[np.repeat(starts[point], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    n_faces = len(surface.faces)
+    key = np.unique(row.astype(np.int64) * n_faces + face)  # sorted: the rows in order
+    row, face = key // n_faces, key % n_faces
+    q = nodes[close[row]]
+    exact = point_triangle_distance(np.asarray(surface.triangles)[face], q)
+    first = np.flatnonzero(np.r_[True, row[1:] != row[:-1]])  # every row has a face: its nearest point's
+    dist[close[row[first]]] = np.minimum(np.minimum.reduceat(exact, first), cap)
     return dist, len(pts)
