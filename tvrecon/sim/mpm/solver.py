@@ -143,6 +143,7 @@ class MLSMPM:
         # reads ``pending_bounds`` (9,) with its own host read and gives the values back (:meth:`set_next_bounds`)
         self.pending_bounds: Tensor | None = None
         self._next_layout: _NextLayout | None = None
+        self._hand_memo: tuple[Tensor, int, Tensor] | None = None  # _hand_cf: the last hand velocity and its copy
         self._consts: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
         self._scenes_of: tuple[Tensor, int, int, int | None] | None = None  # (batch, its version, B, block)
         self._kernels: CompiledKernels | None = compiled_kernels() if compile else None
@@ -399,7 +400,7 @@ class MLSMPM:
             self._kernels, self._fields, state, colliders, hand_velocity, alpha, B, block,
             self.cfg, self.dt, self.mu, self.lam, self._compiled_chunk(x.device), o_int, self._mesh_stack,
             dims=plan.D if planned else None, padded=planned and plan.padded,
-            defer_polar=deferred, exact_polar=self.exact_polar,
+            defer_polar=deferred, exact_polar=self.exact_polar, hand_cf=self._hand_cf(hand_velocity),
         )  # fmt: skip
         self.last_dims = out.dims
         self.pending_polar_ok = out.polar_ok
@@ -411,6 +412,17 @@ class MLSMPM:
         if out.particle_force is not None:
             self._particle_contact_force = out.particle_force
         return out.state
+
+    def _hand_cf(self, hand_velocity: Tensor | None) -> Tensor | None:
+        """The (3, P) channel-first copy of a (P, 3) hand velocity for the compiled G2P, kept while the caller passes
+        the same tensor unchanged (the press loop does, step after step): no (P, 3) transpose copy per step. None for
+        any other hand velocity (the step makes its own)."""
+        if hand_velocity is None or hand_velocity.dim() != 2 or hand_velocity.requires_grad:
+            return None
+        memo = self._hand_memo
+        if memo is None or memo[0] is not hand_velocity or memo[1] != hand_velocity._version:
+            memo = self._hand_memo = (hand_velocity, hand_velocity._version, hand_velocity.T.contiguous())
+        return memo[2]
 
     def _stencil(self, state: ParticleState, B: int, block: int | None = None) -> Stencil:
         """Particle -> node stencil: base = floor(x/dx - 0.5), fx = x/dx - base, quadratic B-spline weights."""

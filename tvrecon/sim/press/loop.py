@@ -224,15 +224,26 @@ class PressLoop:
         bar = tqdm(total=total * len(active), desc="EIP press", disable=not p.progress, leave=False)
         n = 0
         hands: dict[tuple[float, ...], tuple[Tensor, Tensor]] = {}  # signs -> hand velocity and step (no autograd)
+        # signs -> the per-particle hand velocity and alpha (no autograd): the same tensors every step while the
+        # active touches and their phases stay, so no (B P, 3) expansion per step and the compiled step keeps its
+        # channel-first copy of them (MLSMPM._hand_cf)
+        expanded: dict[tuple[float, ...], tuple[Tensor, Tensor]] = {}
         while active:
             B = len(active)
             signs = [touches[t].hand_sign() for t in active]
             v_touch, moved = hands.get(tuple(signs)) or _hand(signs, speed_t, down, dt, hands)  # (B, 3) each
+            grad = v_touch.requires_grad or alpha1.requires_grad
             # one scene without autograd: the (3,) hand velocity broadcasts over the particles (the same values, no
             # (P, 3) copy per step; with autograd the gradients' summation order is kept as it was)
-            one = B == 1 and not (v_touch.requires_grad or alpha1.requires_grad)
-            hv = v_touch[0] if one else v_touch.repeat_interleave(P, dim=0)  # (3,) or (B * P, 3)
-            alpha = alpha1 if one else alpha1.repeat(B)
+            one = B == 1 and not grad
+            if one:
+                hv, alpha = v_touch[0], alpha1  # (3,), (P,)
+            elif grad or tuple(signs) not in expanded:
+                hv, alpha = v_touch.repeat_interleave(P, dim=0), alpha1.repeat(B)  # (B * P, 3), (B * P,)
+                if not grad:
+                    expanded[tuple(signs)] = hv, alpha
+            else:
+                hv, alpha = expanded[tuple(signs)]
             colliders = [touches[t].place.collider for t in active]
             k = self._window_length(solver, state, hv, alpha, [touches[t] for t in active])
             go = _Go(solver, colliders, hv, alpha, moved, B, P, rest)

@@ -112,6 +112,7 @@ def fused_step(
     padded: bool = False,
     defer_polar: bool = False,
     exact_polar: bool = False,
+    hand_cf: Tensor | None = None,
 ) -> FusedStep:
     """One no-grad step with the compiled ``kernels``; the collider ``fields`` remember the colliders' sdf on the
     block grid between steps. ``state`` ... ``block`` as :meth:`tvrecon.sim.mpm.solver.MLSMPM._step`; ``cfg``: the
@@ -124,7 +125,8 @@ def fused_step(
     margin instead (``MLSMPM.trust_next``: the indices are clamped into the block, as ``grid.block_index`` does);
     ``defer_polar`` leaves the fixed-step polar's convergence to the caller (``FusedStep.polar_ok``) instead of a read
     here; ``exact_polar`` takes the iterating polar decomposition (the caller's rerun of a step that did not
-    converge)."""
+    converge); ``hand_cf``: the (3, P) channel-first copy of a (P, 3) ``hand_velocity`` when the caller keeps one
+    (None: made here)."""
     k = kernels
     x = state.x
     P = x.shape[0]
@@ -187,7 +189,7 @@ def fused_step(
     elif hand_velocity.dim() == 1:
         hvt = hand_velocity[:, None]
     else:
-        hvt = hand_velocity.T.contiguous()
+        hvt = hand_velocity.T.contiguous() if hand_cf is None else hand_cf
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
     xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
