@@ -18,6 +18,7 @@ import enum
 import math
 import warnings
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -223,27 +224,11 @@ class PressLoop:
         total = self.max_steps + int(p.release_steps)
         bar = tqdm(total=total * len(active), desc="EIP press", disable=not p.progress, leave=False)
         n = 0
-        hands: dict[tuple[float, ...], tuple[Tensor, Tensor]] = {}  # signs -> hand velocity and step (no autograd)
-        # signs -> the per-particle hand velocity and alpha (no autograd): the same tensors every step while the
-        # active touches and their phases stay, so no (B P, 3) expansion per step and the compiled step keeps its
-        # channel-first copy of them (MLSMPM._hand_cf)
-        expanded: dict[tuple[float, ...], tuple[Tensor, Tensor]] = {}
+        hands: dict[tuple[float, ...], Hand] = {}  # signs -> the hand's velocities and step (no autograd)
         while active:
             B = len(active)
             signs = [touches[t].hand_sign() for t in active]
-            v_touch, moved = hands.get(tuple(signs)) or _hand(signs, speed_t, down, dt, hands)  # (B, 3) each
-            grad = v_touch.requires_grad or alpha1.requires_grad
-            # one scene without autograd: the (3,) hand velocity broadcasts over the particles (the same values, no
-            # (P, 3) copy per step; with autograd the gradients' summation order is kept as it was)
-            one = B == 1 and not grad
-            if one:
-                hv, alpha = v_touch[0], alpha1  # (3,), (P,)
-            elif grad or tuple(signs) not in expanded:
-                hv, alpha = v_touch.repeat_interleave(P, dim=0), alpha1.repeat(B)  # (B * P, 3), (B * P,)
-                if not grad:
-                    expanded[tuple(signs)] = hv, alpha
-            else:
-                hv, alpha = expanded[tuple(signs)]
+            _, moved, hv, alpha = hands.get(tuple(signs)) or _hand(signs, speed_t, down, dt, alpha1, P, hands)
             colliders = [touches[t].place.collider for t in active]
             k = self._window_length(solver, state, hv, alpha, [touches[t] for t in active])
             go = _Go(solver, colliders, hv, alpha, moved, B, P, rest)
@@ -489,14 +474,36 @@ class PressLoop:
         )
 
 
+class Hand(NamedTuple):
+    """The hand of one set of active touches and phases (``_hand``)."""
+
+    v_touch: Tensor  # (B, 3) hand velocity of each scene
+    moved: Tensor  # (B, 3) its move in one step
+    hv: Tensor  # the solver's hand velocity: (3,) for one scene without autograd (it broadcasts), else (B P, 3)
+    alpha: Tensor  # the solver's alpha: (P,) or (B P,)
+
+
 def _hand(
-    signs: list[float], speed: Tensor, down: Tensor, dt: float, cache: dict[tuple[float, ...], tuple[Tensor, Tensor]]
-) -> tuple[Tensor, Tensor]:
-    """(B, 3) hand velocity of each scene (``signs`` in units of ``speed`` along ``down``) and its (B, 3) move in one
-    step of ``dt``; kept in ``cache`` under ``signs`` unless it needs gradients (the same values every step)."""
+    signs: list[float],
+    speed: Tensor,
+    down: Tensor,
+    dt: float,
+    alpha1: Tensor,
+    P: int,
+    cache: dict[tuple[float, ...], Hand],
+) -> Hand:
+    """The hand of scenes whose ``signs`` are in units of ``speed`` along ``down``, with the pad's (P,) ``alpha1``;
+    kept in ``cache`` under ``signs`` unless it needs gradients: the same tensors every step while the active touches
+    and their phases stay, so no (B P, 3) expansion per step and the compiled step keeps its channel-first copy of the
+    hand velocity (``MLSMPM._hand_cf``)."""
     v_touch = torch.tensor(signs, device=down.device)[:, None] * speed * down
-    out = v_touch, v_touch * dt
-    if not v_touch.requires_grad:
+    grad = v_touch.requires_grad or alpha1.requires_grad
+    if len(signs) == 1 and not grad:  # the (3,) velocity broadcasts over the particles: no (P, 3) copy
+        hv, alpha = v_touch[0], alpha1
+    else:  # with autograd the gradients' summation order is kept as it was
+        hv, alpha = v_touch.repeat_interleave(P, dim=0), alpha1.repeat(len(signs))
+    out = Hand(v_touch, v_touch * dt, hv, alpha)
+    if not grad:
         cache[tuple(signs)] = out
     return out
 
