@@ -13,7 +13,7 @@ from test_mpm_compile import needs_compiler
 
 from tvrecon.sim.bodies.mesh_stack import MeshStack, near_blocks
 from tvrecon.sim.mpm.compiled import backend
-from tvrecon.sim.mpm.grid import stencil_shifts
+from tvrecon.sim.mpm.grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.particle_contact import contact_setup, mesh_contact
 
 
@@ -34,17 +34,18 @@ def test_near_blocks_and_mesh_contact_equal_the_eager_search():
     g = torch.Generator().manual_seed(0)
     N = 4000
     lin = torch.randint(0, N - 2000, (B * M,), generator=g)
-    w_all = torch.rand(27, B * M, generator=g)
+    fxt = 0.5 + torch.rand(3, B * M, generator=g)  # in [0.5, 1.5): the weights come from it
+    w_all = torch.stack(bspline_weights(fxt), 0)  # (27, P)
     node_mass = torch.rand(N, generator=g) * (torch.rand(N, generator=g) > 0.2)
     gv = torch.randn(N, 3, generator=g)
     mass, alpha = torch.rand(B * M, generator=g), torch.rand(B * M, generator=g)
     hv = torch.randn(B * M, 3, generator=g)
     shifts = stencil_shifts(100, 10, torch.device("cpu"))
     tables = stack.lookup_tables(x.dtype)
-    out = mesh_contact(gv, node_mass, lin, w_all, shifts, cand, scene[cand], x, mass, alpha, hv, *tables, dx, dx, 1e-3)
+    out = mesh_contact(gv, node_mass, lin, fxt, shifts, cand, scene[cand], x, mass, alpha, hv, *tables, dx, dx, 1e-3)
     phi, n = stack.sdf_normal(x[cand], scene[cand])
     phi = torch.where(phi < dx, phi, torch.full_like(phi, math.inf))
-    want = (*contact_setup(gv, node_mass, lin, w_all, shifts, cand, mass, alpha, hv, 1e-3), phi, n)
+    want = (*contact_setup(gv, node_mass, lin, w_all[:, cand], shifts, cand, mass, alpha, hv, 1e-3), phi, n)
     assert len(out) == len(want) == 8
     for got, exp in zip(out, want):
         assert got.shape[0] in (cand.numel(), 27, 27 * cand.numel())

@@ -93,9 +93,10 @@ def test_particle_contact_compile_failure_falls_back_to_eager(monkeypatch):
         raise RuntimeError("no compiler here")
 
     compiled = backend.CompiledKernels()
-    plain = {"stencil": kernels.stencil_weights, "index": kernels.block_index, "grid": grid_collide}
+    plain = {"stencil": kernels.stencil_base, "index": kernels.block_index, "grid": grid_collide}
     plain.update(polar=kernels.polar_fixed, p2g=kernels.p2g_contrib, g2p=g2p_fails)
     monkeypatch.setattr(backend, "_KERNELS", compiled)
+    monkeypatch.setattr(step, "g2p_grid_available", lambda *a: False)  # the kernel, not the C++ gather
     monkeypatch.setattr(compiled, "_fns", plain)
     cfg = MPMConfig(n_grid=32, contact="particle")
     eager = MLSMPM(cfg)

@@ -9,7 +9,7 @@ from test_mpm_compile import _press, needs_compiler
 from tvrecon.sim.mpm import MLSMPM, MPMConfig
 from tvrecon.sim.mpm.compiled import scatter as mpm_scatter
 from tvrecon.sim.mpm.compiled import step
-from tvrecon.sim.mpm.compiled.kernels import node_sums, p2g_contrib, polar_fixed, stencil_weights
+from tvrecon.sim.mpm.compiled.kernels import node_sums, p2g_contrib, polar_fixed, stencil_base
 from tvrecon.sim.mpm.grid import block_layout
 
 
@@ -27,15 +27,15 @@ def test_fused_p2g_matches_row_scatter(one_thread, B):
     if not mpm_scatter.p2g_grid_available(x):
         pytest.skip("the fused scatter could not be built here")
     inv_dx, dx, dt, mu, lam = float(n_grid), 1.0 / n_grid, 1e-3, 1.2, 0.8
-    base_t, fx, w, _, _ = stencil_weights(x.T.contiguous(), inv_dx)
+    base_t, fx, _, _ = stencil_base(x.T.contiguous(), inv_dx)
     lo, lin, D = block_layout(base_t.T, batch, B, P // B if B > 1 else None)
     N, S0, S1 = B * D[0] * D[1] * D[2], D[1] * D[2], D[2]
     Ft, Ct, vt = F.reshape(P, 9).T.contiguous(), C.reshape(P, 9).T.contiguous(), v.T.contiguous()
     Rt, ok = polar_fixed(Ft, (8.0 * torch.finfo(torch.float32).eps) ** 0.5)
     assert bool(ok)
-    rows = p2g_contrib(Ft, Rt, Ct, vt, fx, m, vol, w, 0, P, mu, lam, dt, dx, inv_dx)
+    rows = p2g_contrib(Ft, Rt, Ct, vt, fx, m, vol, 0, P, mu, lam, dt, dx, inv_dx)
     ref = node_sums(torch.zeros(N, 108).index_add_(0, lin, rows), S0, S1)  # (4, N)
-    got = mpm_scatter.fused_p2g(Ft, Rt, Ct, vt, fx, w, m, vol, lin, N, S0, S1, mu, lam, dt, dx, inv_dx)  # (N, 4)
+    got = mpm_scatter.fused_p2g(Ft, Rt, Ct, vt, fx, m, vol, lin, N, S0, S1, mu, lam, dt, dx, inv_dx)  # (N, 4)
     assert ref.abs().max() > 0
     torch.testing.assert_close(got.T, ref, rtol=1e-5, atol=1e-6 * float(ref.abs().max()))
 
@@ -48,7 +48,7 @@ def test_fused_p2g_refuses_a_stencil_outside_the_block(one_thread):
     if not mpm_scatter.p2g_grid_available(torch.zeros(1)):
         pytest.skip("the fused scatter could not be built here")
     F = torch.eye(3).reshape(9, 1).repeat(1, P)
-    args = (F, F, torch.zeros(9, P), torch.zeros(3, P), torch.full((3, P), 0.5), torch.full((27, P), 1 / 27))
+    args = (F, F, torch.zeros(9, P), torch.zeros(3, P), torch.full((3, P), 0.5))  # weights 0.5, 0.5, 0 per axis
     m = torch.ones(P)
     ok = torch.tensor([0, 1, 31, 62])  # the last one's stencil ends at node 62 + 2 * 25 + 2 * 5 + 2 = 124
     grid = mpm_scatter.fused_p2g(*args, m, m, ok, N, S0, S1, 1.0, 1.0, 1e-3, 0.1, 10.0)

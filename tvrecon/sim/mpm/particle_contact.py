@@ -40,7 +40,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import MeshStack, stacked_sdf_normal
-from tvrecon.sim.mpm.grid import Stencil, stencil_shifts
+from tvrecon.sim.mpm.grid import Stencil, bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
 
 __all__ = [
@@ -389,8 +389,22 @@ def particle_contact_grid(
             hv = hand_velocity if hand_velocity is None or hand_velocity.dim() == 2 else hand_velocity[None]
             shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
             prep = kernels(
-                "mesh_contact", gv, node_mass, st.lin, st.w, shifts, cand, scene, state.x, state.mass, alpha, hv,
-                *mesh.lookup_tables(state.x.dtype), mesh.dx, dx, dt,
+                "mesh_contact",
+                gv,
+                node_mass,
+                st.lin,
+                st.fx.T,
+                shifts,
+                cand,
+                scene,
+                state.x,
+                state.mass,
+                alpha,
+                hv,
+                *mesh.lookup_tables(state.x.dtype),
+                mesh.dx,
+                dx,
+                dt,
             )
             gv, total = kernels("contact", gv, *prep, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
         force = gv.new_zeros(B, 3).index_add(0, scene, total)
@@ -401,7 +415,8 @@ def particle_contact_grid(
     total = gv.new_zeros(K, 3)
     if K:
         shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
-        setup = contact_setup(gv, node_mass, st.lin, st.w, shifts, cand, state.mass, alpha, hand_velocity, dt)
+        w = st.weights(cand)  # (27, K)
+        setup = contact_setup(gv, node_mass, st.lin, w, shifts, cand, state.mass, alpha, hand_velocity, dt)
         args = (gv, *setup, phi, n, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
         gv, total = contact_passes(*args) if kernels is None else kernels("contact", *args)
     force = gv.new_zeros(B, 3).index_add(0, scene, total)
@@ -412,7 +427,7 @@ def contact_setup(
     gv: Tensor,
     node_mass: Tensor,
     lin: Tensor,
-    w_all: Tensor,
+    w_cand: Tensor,
     shifts: Tensor,
     cand: Tensor,
     mass: Tensor,
@@ -422,15 +437,15 @@ def contact_setup(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None, Tensor | None]:
     """What :func:`contact_passes` needs of the K particles ``cand``, after ``gv``: their (27 K,) stencil nodes, (27,
     K, 1) weights, (27 K, 1) shares ``w_ip dt / m_i``, (K, 1) masses, (K, 1) alpha and (K, 3) hand velocity (None
-    without ``alpha``). lin: (P,) base node; w_all: (27, P) weights; shifts: the (27,) stencil offsets
-    (:func:`tvrecon.sim.mpm.grid.stencil_shifts`); node_mass: (N,) grid mass; mass, alpha: (P,); hand_velocity: (3,),
-    (1, 3) or (P, 3) or None."""
+    without ``alpha``). lin: (P,) base node; w_cand: (27, K) weights of the candidates; shifts: the (27,) stencil
+    offsets (:func:`tvrecon.sim.mpm.grid.stencil_shifts`); node_mass: (N,) grid mass; mass, alpha: (P,);
+    hand_velocity: (3,), (1, 3) or (P, 3) or None."""
     K = cand.shape[0]
     idx = lin[cand][None, :] + shifts[:, None]  # (27, K): stencil_nodes of the candidates
     gm = node_mass.to(gv.dtype)[idx]  # (27, K): > 0 where w > 0
     has_mass = gm > 0
     inv_m = torch.where(has_mass, torch.reciprocal(torch.where(has_mass, gm, 1.0)), 0.0)
-    w = w_all[:, cand].to(gv.dtype)[:, :, None]  # (27, K, 1)
+    w = w_cand.to(gv.dtype)[:, :, None]  # (27, K, 1)
     share = (w * (dt * inv_m)[:, :, None]).reshape(-1, 1)  # (27 K, 1): w_ip dt / m_i
     m = mass[cand, None].to(gv.dtype)  # (K, 1)
     a = hv = None
@@ -446,7 +461,7 @@ def mesh_contact(
     gv: Tensor,
     node_mass: Tensor,
     lin: Tensor,
-    w_all: Tensor,
+    fxt: Tensor,
     shifts: Tensor,
     cand: Tensor,
     scene: Tensor,
@@ -472,4 +487,5 @@ def mesh_contact(
     eager steps compute them (to round-off)."""
     phi, n = stacked_sdf_normal(x[cand], scene, cell_f64, cell_i64, table, box, up, table_dx)
     phi = torch.where(phi < dx, phi, math.inf)  # beyond the reach (or NaN): no contact, exactly
-    return (*contact_setup(gv, node_mass, lin, w_all, shifts, cand, mass, alpha, hand_velocity, dt), phi, n)
+    w_cand = torch.stack(bspline_weights(fxt[:, cand]), 0)  # (27, K) from the (3, P) fx, no (27, P) table
+    return (*contact_setup(gv, node_mass, lin, w_cand, shifts, cand, mass, alpha, hand_velocity, dt), phi, n)

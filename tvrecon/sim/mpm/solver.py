@@ -299,7 +299,18 @@ class MLSMPM:
             # grid[0]: the node mass with its graph (the transfer keeps it detached), so that d(1 / m_i)/dx reaches
             # autograd through the contact's impulse share w_ip J_p / m_i
             gv, self.last_force, self._particle_contact_force = particle_contact_grid(
-                state, st, gv, grid[0], colliders, hand_velocity, alpha, B, block, self.dt, self.dx, self.cfg.friction,
+                state,
+                st,
+                gv,
+                grid[0],
+                colliders,
+                hand_velocity,
+                alpha,
+                B,
+                block,
+                self.dt,
+                self.dx,
+                self.cfg.friction,
                 stack=self._mesh_stack,
             )
         else:
@@ -576,8 +587,8 @@ class MLSMPM:
             raise RuntimeError("last_particle_force needs a step first")
         if self.cfg.contact == "particle":  # the collider acted on the particles: their own forces
             return contact_force  # type: ignore[return-value]
-        w = transfer.w
-        o_int = self._constants(w.dtype, w.device)[2]
+        ref = transfer.node_force
+        o_int = self._constants(ref.dtype, ref.device)[2]
         if self._kernels is not None:  # compiled: one fused gather (same terms, compiled.step.particle_force)
             try:
                 return particle_force(self._kernels, transfer, mass, o_int)

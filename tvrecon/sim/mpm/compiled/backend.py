@@ -19,7 +19,7 @@ from tvrecon.sim.mpm.compiled.kernels import (
     p2g_contrib,
     polar_fixed,
     share_force,
-    stencil_weights,
+    stencil_base,
 )
 from tvrecon.sim.mpm.particle_contact import contact_passes, mesh_contact
 
@@ -34,9 +34,9 @@ _DYN_DIMS: dict[str, tuple[int | tuple[int, ...] | None, ...]] = {
     "stencil": (1,),
     "index": (1, 1),
     "polar": (1,),
-    "p2g": (1, 1, 1, 1, 1, 0, 0, 1, None, None),
+    "p2g": (1, 1, 1, 1, 1, 0, 0, None, None),
     "grid": (0, None, None, 0, 1),
-    "g2p": (0, None, 0, 1, 1, 1, 1, 0, 1),
+    "g2p": (0, None, 0, 1, 1, 1, 0, 1),
     "share": (0, None, 0, 1, 0),
     "contact": (0, 0, 1, 0, 0, 0, 0, 0, 0),
     "near": ((0, 1), 0, 0, 0, 0),
@@ -65,7 +65,7 @@ class CompiledKernels:
         self._fns: dict[str, Callable] = {
             name: torch.compile(f, options=_OPTIONS)
             for name, f in (
-                ("stencil", stencil_weights),
+                ("stencil", stencil_base),
                 ("index", block_index),
                 ("polar", polar_fixed),
                 ("p2g", p2g_contrib),

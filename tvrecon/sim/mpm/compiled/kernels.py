@@ -6,7 +6,9 @@ control flow) so that inductor fuses each function into a few loops (C++/OpenMP 
 per-particle tensor is channel-first, ``(3, P)`` / ``(9, P)`` contiguous: inductor's C++ backend vectorizes a loop
 only when its loads and stores are contiguous along the particles (``(P, 3, 3)`` rows give scalar loops).
 
-- :func:`stencil_weights`: ``base``, ``fx``, the 27 quadratic B-spline weights and each scene's bounds of ``base``;
+- :func:`stencil_base`: ``base``, ``fx`` and each scene's bounds of ``base`` (:func:`stencil_weights` adds the 27
+  quadratic B-spline weights; the kernels below compute them from ``fx`` where they use them,
+  :func:`tvrecon.sim.mpm.grid.bspline_weights`);
 - :func:`block_index`: each particle's base node on the block grid (``grid.block_layout``'s ``lin``);
 - :func:`polar_fixed`: the scaled Newton polar decomposition of :func:`tvrecon.sim.mpm.materials.polar_decomposition`,
   a fixed number of iterations with a per-particle stop (a particle keeps the iterate at which its step fell below
@@ -33,10 +35,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from tvrecon.sim.mpm.grid import bspline_weights
 from tvrecon.sim.mpm.materials import POLAR_FIXED_ITERS
 
 __all__ = [
     "NEWTON_ITERS",
+    "stencil_base",
     "stencil_weights",
     "block_index",
     "polar_fixed",
@@ -84,13 +88,19 @@ def stencil_weights(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tens
     """From positions xt (3, P) of B scenes of P / B contiguous particles each: ``base_f = floor(x/dx - 0.5)``
     (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P) and the per-scene bounds of base_f, lo_f and hi_f (3, B) (for
     :func:`tvrecon.sim.mpm.grid.block_dims`; exact, as min and max are)."""
+    base_f, fx, lo_f, hi_f = stencil_base(xt, inv_dx, B)
+    return base_f, fx, torch.stack(bspline_weights(fx), 0), lo_f, hi_f
+
+
+def stencil_base(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """:func:`stencil_weights` without the weights (the compiled step's kernel ``"stencil"``: the (27, P) table is
+    ~110 bytes a particle written once and read by P2G and G2P; they compute the weights from ``fx`` instead):
+    base_f, fx (3, P) and the per-scene bounds lo_f, hi_f (3, B)."""
     Xg = xt * inv_dx
     base_f = torch.floor(Xg - 0.5)
     fx = Xg - base_f
-    wa = [(0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2) for f in fx]
-    w = torch.stack([wa[0][i] * wa[1][j] * wa[2][k] for i, j, k in _OFFS], 0)
     per_scene = base_f.view(3, B, -1)
-    return base_f, fx, w, per_scene.amin(2), per_scene.amax(2)
+    return base_f, fx, per_scene.amin(2), per_scene.amax(2)
 
 
 def block_index(base_f: Tensor, lo: Tensor, dims: Tensor) -> Tensor:
@@ -137,7 +147,6 @@ def p2g_contrib(
     fx: Tensor,
     m: Tensor,
     vol: Tensor,
-    w: Tensor,
     s0: int,
     n: int,
     mu: float,
@@ -150,14 +159,16 @@ def p2g_contrib(
     particles ``s0 .. s0 + n`` (particle-major, so that ``index_add_`` along the nodes adds one contiguous row per
     particle).
 
-    Channel-first whole-step inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,), w (27, P). The chunk is sliced
+    Channel-first whole-step inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,); the weights come from fx
+    (:func:`~tvrecon.sim.mpm.grid.bspline_weights`). The chunk is sliced
     here, inside the compiled code, so that each chunk's call passes the same tensors (with slices as arguments, the
     guards and wrappers of a call cost ~40 us more per chunk in a microbenchmark).
     ``A = m C - (4 dt V0 / dx^2) tau`` with the fixed-corotated Kirchhoff stress
     ``tau = 2 mu (F - R) F^T + lam (J - 1) J I`` (rows c = mass, momentum x, y, z; then offset o, as the eager P2G).
     """
     sl = slice(s0, s0 + n)
-    Ft, Rt, Ct, vt, fx, w = Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl], w[:, sl]
+    Ft, Rt, Ct, vt, fx = Ft[:, sl], Rt[:, sl], Ct[:, sl], vt[:, sl], fx[:, sl]
+    w = torch.stack(bspline_weights(fx), 0)  # (27, n)
     m, vol = m[sl], vol[sl]
     Fr, Rr, Cr = Ft.unbind(0), Rt.unbind(0), Ct.unbind(0)
     cof = _cof(Fr)
@@ -204,7 +215,6 @@ def g2p_update(
     gv: Tensor,
     offs: Tensor,
     lin: Tensor,
-    w: Tensor,
     fx: Tensor,
     xt: Tensor,
     Ft: Tensor,
@@ -218,9 +228,11 @@ def g2p_update(
     gv: (N - 2, 9) runs of 3 neighbouring node velocities, row n = ``[v(n), v(n + 1), v(n + 2)]`` (the caller's
     ``(N, 3)`` grid viewed with strides (3, 1), no copy: a particle's 27 nodes are 9 such runs); offs: (9,) int64
     node-axis offset of each run (``i S0 + j S1``); lin: (P,) base node of each particle. One index per run instead of
-    one per node. Channel-first: fx, xt (3, P), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v (3, P),
-    C, F (9, P).
+    one per node. Channel-first: fx, xt (3, P) (the weights come from fx,
+    :func:`~tvrecon.sim.mpm.grid.bspline_weights`), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v
+    (3, P), C, F (9, P).
     """
+    w = bspline_weights(fx)
     g = gv[lin[None, :] + offs[:, None]]  # (9, P, 9): indirect loads fused into the sums below by inductor
     S = []  # S[c] = [sum_o w v_c, sum_o w v_c o_i, ... o_j, ... o_k]
     for c in range(3):
@@ -247,10 +259,12 @@ def g2p_update(
     return x_new, torch.stack(v_new, 0), torch.stack(Cn, 0), F_new
 
 
-def share_force(pm: Tensor, offs: Tensor, lin: Tensor, w: Tensor, mass: Tensor) -> Tensor:
+def share_force(pm: Tensor, offs: Tensor, lin: Tensor, fx: Tensor, mass: Tensor) -> Tensor:
     """``f_p = m_p sum_o w_o (f / m)(base + o)`` (:func:`tvrecon.sim.mpm.grid.share_node_force`, another summation
     order): pm (N - 2, 9) runs of the per-mass node forces ``f_i / m_i`` (as ``gv`` of :func:`g2p_update`), offs (9,),
-    lin (P,), w (27, P), mass (P,). Returns the (P, 3) particle forces."""
+    lin (P,), fx (3, P) (the weights, :func:`~tvrecon.sim.mpm.grid.bspline_weights`), mass (P,). Returns the (P, 3)
+    particle forces."""
+    w = bspline_weights(fx)
     g = pm[lin[None, :] + offs[:, None]]  # (9, P, 9)
     acc = [sum(w[o] * g[o // 3, :, 3 * (o % 3) + c] for o in range(27)) for c in range(3)]
     return torch.stack([mass * a for a in acc], 1)

@@ -5,8 +5,9 @@ computes each particle's stress and affine momentum and adds its 27 stencil cont
 The inductor path it replaces on CPU (``compiled.kernels.p2g_contrib`` rows of 108 per particle, an eager ``index_add_``
 of those rows, then ``node_sums``) writes and reads ~10 MB per step for a paper pad and pays ~20 ns per scattered row
 in ``index_add_``; here each particle's 27 x 4 values go to the 9 runs of 3 neighbouring nodes (12 contiguous
-floats each) without a buffer. The sums are the same terms added in another order (per node, particle by particle),
-so the grid equals the row path to float32 round-off.
+floats each) without a buffer, with the B-spline weights computed from ``fx`` (a (27, P) table read from 27 rows
+of P was ~60% of this loop's time). The sums are the same terms added in another order (per node, particle by
+particle), so the grid equals the row path to float32 round-off.
 
 Built once per process with inductor's own C++ toolchain and cache (``torch._inductor.codecache.CppCodeCache``, the
 compiler the compiled path needs anyway). Used only for float32 CPU tensors on one torch thread (the loop is serial:
@@ -27,7 +28,8 @@ log = logging.getLogger(__name__)
 
 #: the C++ source: phase 1 (a loop over particles, ``omp simd``) computes per particle the 13 numbers
 #: q = [m, then per axis a: mv0_a, dx A_a0, dx A_a1, dx A_a2] (channel-first (13, P)); phase 2 adds
-#: ``w_o [m, mv0 + dx A o]`` for the 27 offsets o = (i, j, k) to node ``lin + i S0 + j S1 + k`` of the (N, 4) grid,
+#: ``w_o [m, mv0 + dx A o]`` (w_o from fx, :func:`tvrecon.sim.mpm.grid.bspline_weights`) for the 27 offsets
+#: o = (i, j, k) to node ``lin + i S0 + j S1 + k`` of the (N, 4) grid,
 #: the 4 channels of a node as one 4-float vector (GCC / Clang vector extension: another compiler fails the build,
 #: and the row path stays).
 #: The arithmetic is ``compiled.kernels.p2g_contrib``'s, term by term in its order.
@@ -36,7 +38,7 @@ SOURCE = r"""
 #include <cstring>
 typedef float v4 __attribute__((vector_size(16)));
 extern "C" int64_t p2g_grid(const float* F, const float* R, const float* C, const float* v, const float* fx,
-                            const float* w, const float* m_, const float* vol, const int64_t* lin, int64_t P,
+                            const float* m_, const float* vol, const int64_t* lin, int64_t P,
                             int64_t S0, int64_t S1, int64_t n_nodes, float mu, float lam, float dt, float dx,
                             float inv_dx, float* q, float* grid) {
   const float gscale = 4.0f * dt * inv_dx * inv_dx;
@@ -70,12 +72,18 @@ extern "C" int64_t p2g_grid(const float* F, const float* R, const float* C, cons
     v4 ci = {0.0f, q[2 * P + p], q[6 * P + p], q[10 * P + p]};
     v4 cj = {0.0f, q[3 * P + p], q[7 * P + p], q[11 * P + p]};
     v4 ck = {0.0f, q[4 * P + p], q[8 * P + p], q[12 * P + p]};
+    float wa[3][3];  // quadratic B-spline weights per axis (grid.bspline_weights' formula and order)
+    for (int a = 0; a < 3; ++a) {
+      const float f = fx[a * P + p], u0 = 1.5f - f, u1 = f - 1.0f, u2 = f - 0.5f;
+      wa[a][0] = 0.5f * (u0 * u0); wa[a][1] = 0.75f - u1 * u1; wa[a][2] = 0.5f * (u2 * u2);
+    }
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
         float* g = grid + 4 * (b0 + i * S0 + j * S1);
         const v4 base = (c0 + (float)i * ci) + (float)j * cj;
+        const float wij = wa[0][i] * wa[1][j];
         for (int k = 0; k < 3; ++k) {
-          const float wo = w[(9 * i + 3 * j + k) * P + p];
+          const float wo = wij * wa[2][k];
           v4 acc;
           std::memcpy(&acc, g + 4 * k, sizeof(v4));
           acc += wo * (base + (float)k * ck);
@@ -118,7 +126,6 @@ def fused_p2g(
     Ct: Tensor,
     vt: Tensor,
     fx: Tensor,
-    w: Tensor,
     m: Tensor,
     vol: Tensor,
     lin: Tensor,
@@ -131,11 +138,11 @@ def fused_p2g(
     dx: float,
     inv_dx: float,
 ) -> Tensor:
-    """The P2G grid (N, 4) ``[m_i, (m v)_i]`` of particles with channel-first Ft, Rt, Ct (9, P), vt, fx (3, P),
-    w (27, P), masses m and volumes vol (P,) and base nodes lin (P,) int64 on a block grid of n_nodes nodes with
-    node-axis strides S0, S1 (call only where :func:`p2g_grid_available`)."""
+    """The P2G grid (N, 4) ``[m_i, (m v)_i]`` of particles with channel-first Ft, Rt, Ct (9, P), vt, fx (3, P) (the
+    weights are computed from fx), masses m and volumes vol (P,) and base nodes lin (P,) int64 on a block grid of
+    n_nodes nodes with node-axis strides S0, S1 (call only where :func:`p2g_grid_available`)."""
     P = lin.shape[0]
-    args = [t.contiguous() for t in (Ft, Rt, Ct, vt, fx, w, m, vol)]
+    args = [t.contiguous() for t in (Ft, Rt, Ct, vt, fx, m, vol)]
     lin = lin.contiguous()
     q = torch.empty(13, P, dtype=torch.float32)
     grid = torch.zeros(n_nodes, 4, dtype=torch.float32)

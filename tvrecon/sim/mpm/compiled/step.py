@@ -29,6 +29,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels
+from tvrecon.sim.mpm.compiled.gather import fused_g2p, g2p_grid_available
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
 from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
 from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, share_node_force
@@ -89,7 +90,7 @@ def _grid_update(
     gv, gm, node_force, force, vmax = kernels(
         "grid", G, S0, S1, sdf, nrm, len(colliders), dt, float(cfg.friction), damp
     )
-    return gv, force, Transfer(st.lin, st.w, gm, node_force, (S0, S1)), vmax
+    return gv, force, Transfer(st.lin, None, gm, node_force, (S0, S1), st.fx.T), vmax
 
 
 def fused_step(
@@ -135,7 +136,7 @@ def fused_step(
     # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
     xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
     if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index compiled
-        base_t, fx, w, lo_f, hi_f = k("stencil", xt, inv_dx, B)
+        base_t, fx, lo_f, hi_f = k("stencil", xt, inv_dx, B)
         D = block_dims(lo_f.T, hi_f.T, B) if dims is None else list(dims)
         lo_t = lo_f.to(torch.int64)  # (3, B)
         strides = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
@@ -146,10 +147,10 @@ def fused_step(
         lin = k("index", base_t, lo_t, strides)
         lo = lo_t.T
     else:
-        base_t, fx, w, _, _ = k("stencil", xt, inv_dx, 1)
+        base_t, fx, _, _ = k("stencil", xt, inv_dx, 1)
         lo, lin, D = block_layout(base_t.T, state.batch, B, block)
     n_nodes = B * D[0] * D[1] * D[2]
-    st = Stencil(fx.T, w, lo, lin, D, n_nodes, chunk if chunk > 0 else P)
+    st = Stencil(fx.T, None, lo, lin, D, n_nodes, chunk if chunk > 0 else P)  # no (27, P) weights: from fx
 
     stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
     polar_ok = None
@@ -165,13 +166,13 @@ def fused_step(
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
     if p2g_grid_available(x, state.mass, state.volume):  # CPU, one thread: the fused C++ scatter (compiled.scatter)
-        G = fused_p2g(Ft, Rt, Ct, vt, fx, w, state.mass, state.volume, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
+        G = fused_p2g(Ft, Rt, Ct, vt, fx, state.mass, state.volume, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
     else:
         G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
         chunk = st.chunk
         for s0 in range(0, P, chunk):
             n = min(chunk, P - s0)
-            contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, w, s0, n, mu, lam, dt, dx, inv_dx)
+            contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, s0, n, mu, lam, dt, dx, inv_dx)
             G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
     pforce = None
     if cfg.contact == "particle":  # opt-in: the grid without colliders, then the eager particle contact
@@ -192,7 +193,10 @@ def fused_step(
         hvt = hand_velocity.T.contiguous() if hand_cf is None else hand_cf
     if alpha is not None and hvt is None:
         hvt = torch.zeros(3, 1, dtype=dtype, device=device)
-    xn, vn, Cn, Fn = k("g2p", runs, offs, lin, w, fx, xt, Ft, alpha, hvt, dt, inv_dx)
+    if g2p_grid_available(gv, xt, Ft, alpha, hvt):  # CPU, one thread: the fused C++ gather (compiled.gather)
+        xn, vn, Cn, Fn = fused_g2p(gv, lin, fx, xt, Ft, alpha, hvt, S0, S1, dt, inv_dx)
+    else:
+        xn, vn, Cn, Fn = k("g2p", runs, offs, lin, fx, xt, Ft, alpha, hvt, dt, inv_dx)
     return FusedStep(_cf_state(state, xn, vn, Cn, Fn), force, transfer, pforce, vmax, D, polar_ok)
 
 
@@ -219,8 +223,20 @@ def _particle_contact(
     the (P, 3) particle forces, and the largest node velocity component before the contact."""
     gv, _, transfer, vmax = _grid_update(kernels, fields, G, [None] * B, st, cfg, dt)
     gv, force, pforce = particle_contact_grid(
-        state, st, gv.contiguous(), transfer.node_mass, colliders, hand_velocity, alpha, B, block,
-        dt, 1.0 / cfg.n_grid, cfg.friction, kernels, stack,
+        state,
+        st,
+        gv.contiguous(),
+        transfer.node_mass,
+        colliders,
+        hand_velocity,
+        alpha,
+        B,
+        block,
+        dt,
+        1.0 / cfg.n_grid,
+        cfg.friction,
+        kernels,
+        stack,
     )
     return gv, force, transfer, pforce, vmax
 
@@ -229,11 +245,11 @@ def particle_force(kernels: CompiledKernels, transfer: Transfer, mass: Tensor, o
     """``MLSMPM.last_particle_force`` of a compiled solver: :func:`tvrecon.sim.mpm.grid.share_node_force` as one
     compiled gather of the per-mass node forces (``compiled.kernels.share_force``; the same terms summed in another
     order, without the eager ``(27, P, 3)`` gathered copy). mass: (P,). Returns (P, 3), detached."""
-    lin, w, gm, node_force, (S0, S1) = transfer
-    differentiable = w.requires_grad or node_force.requires_grad or mass.requires_grad
-    if mass.shape != lin.shape or differentiable:  # eager: raises on a wrong shape and
+    lin, w, gm, node_force, (S0, S1), fx = transfer
+    differentiable = (w is not None and w.requires_grad) or node_force.requires_grad or mass.requires_grad
+    if mass.shape != lin.shape or differentiable or fx is None:  # eager: raises on a wrong shape and
         return share_node_force(transfer, mass, o_int)  # keeps the graph of a differentiable step
     per_mass = (node_force / torch.where(gm > 0, gm, torch.ones_like(gm))[:, None]).contiguous()  # (N, 3)
     runs = per_mass.as_strided((per_mass.shape[0] - 2, 9), (3, 1))  # as in fused_step's G2P
     offs = o_int[::3, 0] * S0 + o_int[::3, 1] * S1
-    return kernels("share", runs, offs, lin, w.detach(), mass.detach().to(w))
+    return kernels("share", runs, offs, lin, fx, mass.detach().to(fx))
