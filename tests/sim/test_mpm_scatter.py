@@ -58,48 +58,17 @@ def test_fused_p2g_refuses_a_stencil_outside_the_block(one_thread):
             mpm_scatter.fused_p2g(*args, m, m, torch.tensor([0, 1, 31, bad]), N, S0, S1, 1.0, 1.0, 1e-3, 0.1, 10.0)
 
 
-@needs_compiler
-def test_fused_p2g_polar_is_polar_fixed_then_the_scatter(one_thread):
-    """The P2G loop that computes each particle's R itself equals ``polar_fixed`` then ``fused_p2g`` to float32
-    round-off, and says whether every particle converged as ``polar_fixed`` does (a NaN F or a stretch of 1e3 in 2
-    Newton steps does not)."""
-    g = torch.Generator().manual_seed(2)
-    P, N, S0, S1 = 500, 6 * 6 * 6, 36, 6
-    if not mpm_scatter.p2g_grid_available(torch.zeros(1)):
-        pytest.skip("the fused scatter could not be built here")
-    F = torch.eye(3) + 0.1 * torch.randn(P, 3, 3, generator=g)
-    Ft = F.reshape(P, 9).T.contiguous()
-    Ct, vt = torch.randn(9, P, generator=g), torch.randn(3, P, generator=g)
-    fx = 0.5 + torch.rand(3, P, generator=g)
-    m, vol = 0.5 + torch.rand(P, generator=g), 0.5 + torch.rand(P, generator=g)
-    lin = torch.randint(0, N - 2 * S0 - 2 * S1 - 2, (P,), generator=g)
-    stop = (8.0 * torch.finfo(torch.float32).eps) ** 0.5
-    const = (N, S0, S1, 1.2, 0.8, 1e-3, 1 / 32, 32.0)
-    Rt, ok = polar_fixed(Ft, stop)
-    assert bool(ok)
-    want = mpm_scatter.fused_p2g(Ft, Rt, Ct, vt, fx, m, vol, lin, *const)
-    got, ok_c = mpm_scatter.fused_p2g_polar(Ft, Ct, vt, fx, m, vol, lin, *const, stop)
-    assert ok_c
-    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6 * float(want.abs().max()))
-    for bad, iters in ((torch.diag(torch.tensor([1e3, 1e-3, 1.0])), 2), (torch.full((3, 3), float("nan")), 4)):
-        Fb = Ft.clone()
-        Fb[:, 17] = bad.reshape(9)
-        assert not bool(polar_fixed(Fb, stop, iters)[1])
-        assert not mpm_scatter.fused_p2g_polar(Fb, Ct, vt, fx, m, vol, lin, *const, stop, iters)[1]
-
-
 @pytest.mark.slow
 @needs_compiler
 def test_compiled_step_with_fused_p2g_equals_eager(one_thread, monkeypatch):
-    """A compiled press on one thread takes the fused scatter with its own polar (counted) and stays within the
-    compiled tolerances."""
+    """A compiled press on one thread takes the fused scatter (counted) and stays within the compiled tolerances."""
     calls = []
 
     def counted(*args):
         calls.append(1)
-        return mpm_scatter.fused_p2g_polar(*args)
+        return mpm_scatter.fused_p2g(*args)
 
-    monkeypatch.setattr(step, "fused_p2g_polar", counted)
+    monkeypatch.setattr(step, "fused_p2g", counted)
     cfg = MPMConfig(n_grid=32)
     s_ref, f_ref = _press(MLSMPM(cfg), 30)
     comp = MLSMPM(cfg, compile=True)

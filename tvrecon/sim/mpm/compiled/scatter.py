@@ -22,9 +22,7 @@ import logging
 import torch
 from torch import Tensor
 
-from tvrecon.sim.mpm.compiled.kernels import NEWTON_ITERS
-
-__all__ = ["SOURCE", "fused_p2g", "fused_p2g_polar", "p2g_grid_available"]
+__all__ = ["SOURCE", "fused_p2g", "p2g_grid_available"]
 
 log = logging.getLogger(__name__)
 
@@ -39,80 +37,32 @@ SOURCE = r"""
 #include <cstdint>
 #include <cstring>
 typedef float v4 __attribute__((vector_size(16)));
-// R of F = R S by ``iters`` scaled Newton steps, each frozen once its step is below ``stop`` (kernels.polar_fixed,
-// term by term in its order); returns whether it converged (a NaN step never does)
-static inline bool polar(const float* f, float* X, int64_t iters, float stop) {
-  for (int e = 0; e < 9; ++e) X[e] = f[e];
-  bool done = false;
-  for (int64_t it = 0; it < iters; ++it) {
-    const float c[9] = {X[4] * X[8] - X[5] * X[7], X[5] * X[6] - X[3] * X[8], X[3] * X[7] - X[4] * X[6],
-                        X[7] * X[2] - X[8] * X[1], X[8] * X[0] - X[6] * X[2], X[6] * X[1] - X[7] * X[0],
-                        X[1] * X[5] - X[2] * X[4], X[2] * X[3] - X[0] * X[5], X[0] * X[4] - X[1] * X[3]};
-    const float det = X[0] * c[0] + X[1] * c[1] + X[2] * c[2];
-    float inv[9], n_inv = 0.0f, n_x = 0.0f;
-    for (int e = 0; e < 9; ++e) { inv[e] = c[e] / det; n_inv += inv[e] * inv[e]; }
-    for (int e = 0; e < 9; ++e) n_x += X[e] * X[e];
-    const float gs = __builtin_sqrtf(__builtin_sqrtf(n_inv / n_x));
-    bool small = true;
-    for (int e = 0; e < 9; ++e) {
-      const float xn = 0.5f * (gs * X[e] + inv[e] / gs);
-      small = small && __builtin_fabsf(xn - X[e]) < stop;
-      X[e] = done ? X[e] : xn;
-    }
-    done = done || small;
-  }
-  return done;
-}
-
-// phase 1 of a particle: q = [m, per axis a: mv0_a, dx A_a0, dx A_a1, dx A_a2]; R: its rotation
-static inline void particle_terms(const float* f, const float* r, const float* C, const float* v, const float* fx,
-                                  const float* m_, const float* vol, int64_t p, int64_t P, float mu, float lam,
-                                  float gscale, float dx, float* q) {
-  float d[9], tau[9];
-  for (int e = 0; e < 9; ++e) d[e] = 2.0f * mu * (f[e] - r[e]);
-  const float cof0 = f[4] * f[8] - f[5] * f[7], cof1 = f[5] * f[6] - f[3] * f[8], cof2 = f[3] * f[7] - f[4] * f[6];
-  const float J = f[0] * cof0 + f[1] * cof1 + f[2] * cof2;
-  for (int a = 0; a < 3; ++a)
-    for (int b = 0; b < 3; ++b)
-      tau[3 * a + b] = d[3 * a] * f[3 * b] + d[3 * a + 1] * f[3 * b + 1] + d[3 * a + 2] * f[3 * b + 2];
-  const float pr = lam * (J - 1.0f) * J;
-  tau[0] = tau[0] + pr; tau[4] = tau[4] + pr; tau[8] = tau[8] + pr;
-  const float m = m_[p], gamma = gscale * vol[p];
-  const float f0 = fx[p], f1 = fx[P + p], f2 = fx[2 * P + p];
-  q[p] = m;
-  for (int a = 0; a < 3; ++a) {
-    const float A0 = m * C[(3 * a) * P + p] - gamma * tau[3 * a];
-    const float A1 = m * C[(3 * a + 1) * P + p] - gamma * tau[3 * a + 1];
-    const float A2 = m * C[(3 * a + 2) * P + p] - gamma * tau[3 * a + 2];
-    q[(1 + 4 * a) * P + p] = m * v[a * P + p] - dx * (A0 * f0 + A1 * f1 + A2 * f2);
-    q[(2 + 4 * a) * P + p] = dx * A0; q[(3 + 4 * a) * P + p] = dx * A1; q[(4 + 4 * a) * P + p] = dx * A2;
-  }
-}
-
-// R null: R of each particle's F by ``polar`` (iters, stop), the particles that did not converge counted in
-// *notdone (then the caller redoes the step with an exact R)
 extern "C" int64_t p2g_grid(const float* F, const float* R, const float* C, const float* v, const float* fx,
                             const float* m_, const float* vol, const int64_t* lin, int64_t P,
                             int64_t S0, int64_t S1, int64_t n_nodes, float mu, float lam, float dt, float dx,
-                            float inv_dx, int64_t iters, float stop, int64_t* notdone, float* q, float* grid) {
+                            float inv_dx, float* q, float* grid) {
   const float gscale = 4.0f * dt * inv_dx * inv_dx;
-  if (R) {
 #pragma omp simd
-    for (int64_t p = 0; p < P; ++p) {
-      float f[9], r[9];
-      for (int e = 0; e < 9; ++e) { f[e] = F[e * P + p]; r[e] = R[e * P + p]; }
-      particle_terms(f, r, C, v, fx, m_, vol, p, P, mu, lam, gscale, dx, q);
+  for (int64_t p = 0; p < P; ++p) {
+    float f[9], d[9], tau[9];
+    for (int e = 0; e < 9; ++e) { f[e] = F[e * P + p]; d[e] = 2.0f * mu * (f[e] - R[e * P + p]); }
+    const float cof0 = f[4] * f[8] - f[5] * f[7], cof1 = f[5] * f[6] - f[3] * f[8], cof2 = f[3] * f[7] - f[4] * f[6];
+    const float J = f[0] * cof0 + f[1] * cof1 + f[2] * cof2;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b)
+        tau[3 * a + b] = d[3 * a] * f[3 * b] + d[3 * a + 1] * f[3 * b + 1] + d[3 * a + 2] * f[3 * b + 2];
+    const float pr = lam * (J - 1.0f) * J;
+    tau[0] = tau[0] + pr; tau[4] = tau[4] + pr; tau[8] = tau[8] + pr;
+    const float m = m_[p], gamma = gscale * vol[p];
+    const float f0 = fx[p], f1 = fx[P + p], f2 = fx[2 * P + p];
+    q[p] = m;
+    for (int a = 0; a < 3; ++a) {
+      const float A0 = m * C[(3 * a) * P + p] - gamma * tau[3 * a];
+      const float A1 = m * C[(3 * a + 1) * P + p] - gamma * tau[3 * a + 1];
+      const float A2 = m * C[(3 * a + 2) * P + p] - gamma * tau[3 * a + 2];
+      q[(1 + 4 * a) * P + p] = m * v[a * P + p] - dx * (A0 * f0 + A1 * f1 + A2 * f2);
+      q[(2 + 4 * a) * P + p] = dx * A0; q[(3 + 4 * a) * P + p] = dx * A1; q[(4 + 4 * a) * P + p] = dx * A2;
     }
-  } else {
-    int64_t missed = 0;
-#pragma omp simd reduction(+ : missed)
-    for (int64_t p = 0; p < P; ++p) {
-      float f[9], r[9];
-      for (int e = 0; e < 9; ++e) f[e] = F[e * P + p];
-      missed += polar(f, r, iters, stop) ? 0 : 1;
-      particle_terms(f, r, C, v, fx, m_, vol, p, P, mu, lam, gscale, dx, q);
-    }
-    *notdone = missed;
   }
   int64_t outside = 0;  // particles whose 3x3x3 stencil leaves the block: skipped, counted, an error in Python
   for (int64_t p = 0; p < P; ++p) {
@@ -172,7 +122,7 @@ def p2g_grid_available(*tensors: Tensor) -> bool:
 
 def fused_p2g(
     Ft: Tensor,
-    Rt: Tensor | None,
+    Rt: Tensor,
     Ct: Tensor,
     vt: Tensor,
     fx: Tensor,
@@ -190,51 +140,16 @@ def fused_p2g(
 ) -> Tensor:
     """The P2G grid (N, 4) ``[m_i, (m v)_i]`` of particles with channel-first Ft, Rt, Ct (9, P), vt, fx (3, P) (the
     weights are computed from fx), masses m and volumes vol (P,) and base nodes lin (P,) int64 on a block grid of
-    n_nodes nodes with node-axis strides S0, S1 (call only where :func:`p2g_grid_available`). Rt None: the rotation of
-    each F is computed in the loop (:func:`fused_p2g_polar`)."""
-    return _p2g(Ft, Rt, Ct, vt, fx, m, vol, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx, 0, 0.0)[0]
-
-
-def fused_p2g_polar(
-    Ft: Tensor,
-    Ct: Tensor,
-    vt: Tensor,
-    fx: Tensor,
-    m: Tensor,
-    vol: Tensor,
-    lin: Tensor,
-    n_nodes: int,
-    S0: int,
-    S1: int,
-    mu: float,
-    lam: float,
-    dt: float,
-    dx: float,
-    inv_dx: float,
-    stop: float,
-    iters: int = NEWTON_ITERS,
-) -> tuple[Tensor, bool]:
-    """:func:`fused_p2g` with each particle's rotation R of F = R S computed in the loop, by
-    :func:`~tvrecon.sim.mpm.compiled.kernels.polar_fixed`'s ``iters`` fixed Newton steps and per-particle ``stop``
-    (its arithmetic in its order; no (9, P) R written and read back). Returns the grid and whether every particle
-    converged (if not, the caller redoes the P2G with an exact R, as after ``polar_fixed``)."""
-    return _p2g(Ft, None, Ct, vt, fx, m, vol, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx, int(iters), stop)
-
-
-def _p2g(Ft, Rt, Ct, vt, fx, m, vol, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx, iters, stop):
+    n_nodes nodes with node-axis strides S0, S1 (call only where :func:`p2g_grid_available`)."""
     P = lin.shape[0]
-    args = [None if t is None else t.contiguous() for t in (Ft, Rt, Ct, vt, fx, m, vol)]
+    args = [t.contiguous() for t in (Ft, Rt, Ct, vt, fx, m, vol)]
     lin = lin.contiguous()
     q = torch.empty(13, P, dtype=torch.float32)
     grid = torch.zeros(n_nodes, 4, dtype=torch.float32)
-    notdone = ctypes.c_int64(0)
-    ptr = [ctypes.c_void_p(None if t is None else t.data_ptr()) for t in (*args, lin)]
+    ptr = [ctypes.c_void_p(t.data_ptr()) for t in (*args, lin)]
     ints = [ctypes.c_int64(k) for k in (P, S0, S1, n_nodes)]
     floats = [ctypes.c_float(k) for k in (mu, lam, dt, dx, inv_dx)]
-    polar = [ctypes.c_int64(iters), ctypes.c_float(stop), ctypes.byref(notdone)]
-    outside = _library().p2g_grid(
-        *ptr, *ints, *floats, *polar, ctypes.c_void_p(q.data_ptr()), ctypes.c_void_p(grid.data_ptr())
-    )
+    outside = _library().p2g_grid(*ptr, *ints, *floats, ctypes.c_void_p(q.data_ptr()), ctypes.c_void_p(grid.data_ptr()))
     if outside:  # the row path's index_add_ raises here too; nothing was written out of bounds
         raise IndexError(f"fused P2G: the stencils of {outside} of {P} particles leave the {n_nodes}-node block")
-    return grid, notdone.value == 0
+    return grid

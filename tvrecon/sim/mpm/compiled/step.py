@@ -31,7 +31,7 @@ from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels
 from tvrecon.sim.mpm.compiled.gather import fused_g2p, g2p_grid_available
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
-from tvrecon.sim.mpm.compiled.scatter import fused_p2g, fused_p2g_polar, p2g_grid_available
+from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
 from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, share_node_force
 from tvrecon.sim.mpm.materials import polar_decomposition
 from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
@@ -154,36 +154,26 @@ def fused_step(
 
     stop = (8.0 * torch.finfo(dtype).eps) ** 0.5  # polar_decomposition's default tol = 4 eps
     polar_ok = None
+    if exact_polar:
+        Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
+    else:
+        Rt, converged = k("polar", Ft, stop)
+        if defer_polar:
+            polar_ok = converged
+        elif not bool(converged):  # rare: a particle needs more Newton steps (or F is singular: eager raises)
+            Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
     mu, lam = float(mu), float(lam)
     Ct, vt = state.C.reshape(P, 9).T.contiguous(), state.v.T.contiguous()
     S0, S1 = D[1] * D[2], D[2]
-    m, vol = state.mass, state.volume
-    cpp = p2g_grid_available(x, m, vol)  # CPU, one thread: the fused C++ loops of compiled.scatter
-    G = None
-    if cpp and not exact_polar:  # the polar decomposition and P2G in one loop (no (9, P) R written and read)
-        G, ok = fused_p2g_polar(Ft, Ct, vt, fx, m, vol, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx, stop)
-        if defer_polar:
-            polar_ok = torch.tensor(ok)
-        elif not ok:  # rare: a particle needs more Newton steps (or F is singular: eager raises): again, exact R
-            G = None
-    if G is None:
-        if exact_polar or cpp:
-            Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
-        else:
-            Rt, converged = k("polar", Ft, stop)
-            if defer_polar:
-                polar_ok = converged
-            elif not bool(converged):  # rare, as above
-                Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
-        if cpp:
-            G = fused_p2g(Ft, Rt, Ct, vt, fx, m, vol, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
-        else:
-            G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
-            chunk = st.chunk
-            for s0 in range(0, P, chunk):
-                n = min(chunk, P - s0)
-                contrib = k("p2g", Ft, Rt, Ct, vt, fx, m, vol, s0, n, mu, lam, dt, dx, inv_dx)
-                G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
+    if p2g_grid_available(x, state.mass, state.volume):  # CPU, one thread: the fused C++ scatter (compiled.scatter)
+        G = fused_p2g(Ft, Rt, Ct, vt, fx, state.mass, state.volume, lin, n_nodes, S0, S1, mu, lam, dt, dx, inv_dx)
+    else:
+        G = torch.zeros(n_nodes, 108, dtype=dtype, device=device)  # per base node: the 4 x 27 sums of its particles
+        chunk = st.chunk
+        for s0 in range(0, P, chunk):
+            n = min(chunk, P - s0)
+            contrib = k("p2g", Ft, Rt, Ct, vt, fx, state.mass, state.volume, s0, n, mu, lam, dt, dx, inv_dx)
+            G.index_add_(0, lin[s0 : s0 + n], contrib)  # one contiguous row of 108 per particle
     pforce = None
     if cfg.contact == "particle":  # opt-in: the grid without colliders, then the eager particle contact
         gv, force, transfer, pforce, vmax = _particle_contact(
