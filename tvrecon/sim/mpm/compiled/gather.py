@@ -15,14 +15,13 @@ or a failed build, keeps the inductor kernel.
 from __future__ import annotations
 
 import ctypes
-import logging
 
 import torch
 from torch import Tensor
 
-__all__ = ["SOURCE", "fused_g2p", "g2p_grid_available"]
+from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop
 
-log = logging.getLogger(__name__)
+__all__ = ["SOURCE", "fused_g2p", "g2p_grid_available"]
 
 #: the C++ source. Per particle: the 3 x 3 axis weights from fx, then for each of the 9 runs (i, j) the 3 nodes'
 #: velocities (9 contiguous floats at node ``lin + i S0 + j S1``), summed with the separable weights w_ijk into
@@ -95,23 +94,11 @@ extern "C" int64_t g2p_grid(const float* gv, const int64_t* lin, const float* fx
 }
 """
 
-_LIB: object | None = None  # the loaded library, False after a failed build
+_LOOP = CppLoop(SOURCE, "g2p_grid", "fused G2P gather", "the inductor kernel")
 
 
 def _library():
-    global _LIB
-    if _LIB is None:
-        try:
-            from torch._inductor.codecache import CppCodeCache
-
-            lib = CppCodeCache.load(SOURCE)
-            lib.g2p_grid.restype = ctypes.c_int64
-            _LIB = lib
-        except Exception as e:  # noqa: BLE001 - no compiler, another torch: the inductor kernel stays
-            msg = "the fused G2P gather could not be built (%s: %s); using the inductor kernel"
-            log.warning(msg, type(e).__name__, e)
-            _LIB = False
-    return _LIB or None
+    return _LOOP.library()
 
 
 def g2p_grid_available(*tensors: Tensor | None) -> bool:

@@ -17,14 +17,13 @@ scattered adds of different particles may hit the same node); anything else, or 
 from __future__ import annotations
 
 import ctypes
-import logging
 
 import torch
 from torch import Tensor
 
-__all__ = ["SOURCE", "fused_p2g", "p2g_grid_available"]
+from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop
 
-log = logging.getLogger(__name__)
+__all__ = ["SOURCE", "fused_p2g", "p2g_grid_available"]
 
 #: the C++ source: phase 1 (a loop over particles, ``omp simd``) computes per particle the 13 numbers
 #: q = [m, then per axis a: mv0_a, dx A_a0, dx A_a1, dx A_a2] (channel-first (13, P)); phase 2 adds
@@ -95,22 +94,11 @@ extern "C" int64_t p2g_grid(const float* F, const float* R, const float* C, cons
 }
 """
 
-_LIB: object | None = None  # the loaded library, False after a failed build
+_LOOP = CppLoop(SOURCE, "p2g_grid", "fused P2G scatter", "the row scatter")
 
 
 def _library():
-    global _LIB
-    if _LIB is None:
-        try:
-            from torch._inductor.codecache import CppCodeCache
-
-            lib = CppCodeCache.load(SOURCE)
-            lib.p2g_grid.restype = ctypes.c_int64
-            _LIB = lib
-        except Exception as e:  # noqa: BLE001 - no compiler, another torch: the row path stays
-            log.warning("the fused P2G scatter could not be built (%s: %s); using the row scatter", type(e).__name__, e)
-            _LIB = False
-    return _LIB or None
+    return _LOOP.library()
 
 
 def p2g_grid_available(*tensors: Tensor) -> bool:
