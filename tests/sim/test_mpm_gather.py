@@ -8,7 +8,7 @@ import torch
 from test_mpm_compile import _press, needs_compiler
 
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
-from tvrecon.sim.mpm.compiled import gather, step
+from tvrecon.sim.mpm.compiled import gather, scatter, step
 from tvrecon.sim.mpm.compiled.kernels import block_index, g2p_update, stencil_base
 from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, bspline_weights
 
@@ -84,20 +84,26 @@ def test_weights_from_fx_are_the_eager_stencil_table():
 
 @pytest.mark.slow
 @needs_compiler
-def test_compiled_step_with_fused_g2p_equals_eager(one_thread, monkeypatch):
-    """A compiled press on one thread takes the fused gather (counted) and stays within the compiled tolerances."""
-    calls = []
+def test_compiled_step_with_the_fused_loops_equals_eager(one_thread, monkeypatch):
+    """A compiled press on one thread takes both C++ loops, the P2G scatter and the G2P gather (each counted), and
+    stays within the compiled tolerances."""
+    calls = {"fused_p2g": 0, "fused_g2p": 0}
 
-    def counted(*args):
-        calls.append(1)
-        return gather.fused_g2p(*args)
+    def counted(name, fn):  # noqa: ANN001, ANN202
+        def run(*args):  # noqa: ANN002, ANN202
+            calls[name] += 1
+            return fn(*args)
 
-    monkeypatch.setattr(step, "fused_g2p", counted)
+        return run
+
+    monkeypatch.setattr(step, "fused_p2g", counted("fused_p2g", scatter.fused_p2g))
+    monkeypatch.setattr(step, "fused_g2p", counted("fused_g2p", gather.fused_g2p))
     cfg = MPMConfig(n_grid=32)
     s_ref, f_ref = _press(MLSMPM(cfg), 30)
     comp = MLSMPM(cfg, compile=True)
     s_new, f_new = _press(comp, 30)
-    assert comp.compiled and len(calls) == 30, "the compiled steps must use the fused gather here"
+    assert comp.compiled and calls["fused_p2g"] == 30, "the compiled steps must use the fused scatter here"
+    assert calls["fused_g2p"] == 30, "the compiled steps must use the fused gather here"
     for name in ("x", "v", "F"):
         torch.testing.assert_close(getattr(s_new, name), getattr(s_ref, name), rtol=1e-5, atol=1e-6, msg=name)
     torch.testing.assert_close(f_new, f_ref, rtol=1e-5, atol=1e-8)
