@@ -115,6 +115,28 @@ def test_parallel_workers(tmp_path: Path):
         assert all(np.array_equal(x[k], y[k]) for k in x)
 
 
+@pytest.mark.slow
+def test_every_split_in_one_pool(tmp_path: Path, monkeypatch, capsys):
+    """``workers=2`` over three splits starts one pool, not one per split (each pool start cost ~25 s and a split's
+    tail on one worker); every split's entries are written and the run's rate is printed once."""
+    from tvrecon.data import generate
+
+    pools = []
+    real = generate._pool_generate
+
+    def spy(sets, todo, workers, desc):
+        pools.append(sorted({k for k, _ in todo}))
+        yield from real(sets, todo, workers, desc)
+
+    monkeypatch.setattr(generate, "_pool_generate", spy)
+    stats = main(ARGS + [f"cache_dir={tmp_path}", "workers=2"])
+    assert pools == [[0, 1, 2]]
+    assert [s.generated for s in stats] == [3, 1, 1] and len(list(tmp_path.glob("*/*.npz"))) == 5
+    assert max(s.seconds for s in stats) == generate.combined(stats).seconds > 0
+    out = capsys.readouterr().out
+    assert "[train, val, test] 5 items generated: 10 touches in" in out and "done" in out
+
+
 def test_main_names_a_bad_workers_value() -> None:
     """Issue 14 case 15: `workers=abc` ended in int()'s message without naming workers."""
     with pytest.raises(ValueError, match="workers must be a whole number"):
@@ -135,7 +157,8 @@ def test_default_cache_is_the_projects_whatever_the_working_directory(tmp_path: 
     dm = instantiate(compose_preset("cls_tiny"))
     assert Path(dm.cache_dir) == expected
     assert instantiate(compose_preset("cls_tiny", ["cache_dir=rel"])).cache_dir == "rel"  # an explicit one is kept
-    monkeypatch.setattr(generate, "pregenerate", lambda ds, **kw: generate.GenerateStats())  # generate nothing
+    nothing = lambda sets, **kw: [generate.GenerateStats() for _ in sets]  # noqa: E731
+    monkeypatch.setattr(generate, "pregenerate_splits", nothing)  # generate nothing
     generate.main(["preset=cls_tiny", "splits=train", "workers=1"])
     out = capsys.readouterr().out
     assert f"cache: {expected}\n" in out and f"({expected})" in out
@@ -153,12 +176,13 @@ def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, 
 
     seen = []
 
-    def fake_pregenerate(ds, **kw):
+    def fake_pregenerate(sets, **kw):
+        (ds,) = sets.values()
         worker_copy = pickle.loads(pickle.dumps(ds))  # what a spawned worker receives
         seen.append((worker_copy.press.compile, worker_copy.simulator.compile, cache_key(ds.spec(0))))
-        return generate.GenerateStats()
+        return [generate.GenerateStats()]
 
-    monkeypatch.setattr(generate, "pregenerate", fake_pregenerate)
+    monkeypatch.setattr(generate, "pregenerate_splits", fake_pregenerate)
     monkeypatch.delenv("TVRECON_COMPILE", raising=False)
     base = [*ARGS, f"cache_dir={tmp_path}", "splits=train", "workers=1"]
     generate.main([*base, "compile=true"])

@@ -131,10 +131,10 @@ class _GeneratedDataModule(LightningDataModule):
         """Pre-generate every configured split into the cache when ``pregenerate`` is set (rank 0 only)."""
         if not self.pregenerate:
             return
-        from tvrecon.data.generate import pregenerate
+        from tvrecon.data.generate import pregenerate_splits
 
-        for name in self.available_splits():
-            pregenerate(self.make_dataset(name), workers=self.pregenerate_workers, desc=name)
+        sets = {name: self.make_dataset(name) for name in self.available_splits()}
+        pregenerate_splits(sets, workers=self.pregenerate_workers)  # one pool of workers for every split
 
     def setup(self, stage: str | None = None) -> None:
         wanted = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",), "predict": ("test",)}

@@ -56,7 +56,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -74,7 +74,16 @@ from tvrecon.data.touch_report import contact_report
 from tvrecon.sim.mpm.compiled.policy import AUTO
 from tvrecon.utils.cli_errors import RESUME_HINT
 
-__all__ = ["GenerateStats", "WorkerDied", "pregenerate", "shard_indices", "touches_per_process", "main"]
+__all__ = [
+    "GenerateStats",
+    "WorkerDied",
+    "combined",
+    "pregenerate",
+    "pregenerate_splits",
+    "shard_indices",
+    "touches_per_process",
+    "main",
+]
 
 log = logging.getLogger(__name__)
 
@@ -129,38 +138,46 @@ def touches_per_process(items: int, processes: int, per_item: int) -> int:
 
 
 # ---------------------------------------------------------------------- worker side
-_DATASET: GeneratedDataset | None = None
+_DATASETS: tuple[GeneratedDataset, ...] = ()
 
 
-def _init_worker(dataset: GeneratedDataset) -> None:
-    global _DATASET
+def _init_worker(datasets: tuple[GeneratedDataset, ...]) -> None:
+    global _DATASETS
     # Ctrl-C reaches the whole process group: the main process alone answers it (one line, exit 130) and stops the
     # workers, instead of each worker printing its own KeyboardInterrupt traceback (ignored from their start too)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):  # started with SIGINT blocked (see _pool_generate): now ignored, unblock
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     torch.set_num_threads(1)
-    _DATASET = dataset
+    _DATASETS = datasets
 
 
-def _work(index: int) -> tuple[int, bool]:
-    assert _DATASET is not None, "worker not initialised"
-    _, hit = _DATASET.raw(index)
-    return index, hit
+def _work(job: tuple[int, int]) -> tuple[tuple[int, int], bool]:
+    """Generate item ``index`` of the worker's dataset ``split`` (``job = (split, index)``)."""
+    assert _DATASETS, "worker not initialised"
+    split, index = job
+    _, hit = _DATASETS[split].raw(index)
+    return job, hit
 
 
 class WorkerDied(RuntimeError):
     """A worker process of :func:`pregenerate` died (killed by a signal, e.g. the OOM killer's SIGKILL)."""
 
 
-def _pool_generate(dataset: GeneratedDataset, todo: list[int], workers: int, desc: str) -> Iterator[int]:
-    """Generate ``todo`` in ``workers`` spawned processes; yields each index as it is done.
+def _pool_generate(
+    datasets: Sequence[GeneratedDataset], todo: list[tuple[int, int]], workers: int, desc: Sequence[str]
+) -> Iterator[tuple[int, int]]:
+    """Generate ``todo`` (``(dataset, index)`` pairs) in ``workers`` spawned processes; yields each pair as it is done.
+
+    One pool for every split: the workers start (and compile) once, and a small split does not end on one worker
+    while the other waits for the next split's pool (the fifteenth session measured val and test at 70% of train's
+    rate, each in its own pool).
 
     A ``ProcessPoolExecutor`` (not ``multiprocessing.Pool``, which waits forever for a worker killed by ``kill -9``)
     notices a dead worker at once: the pool is stopped and :class:`WorkerDied` names the signal and how to resume.
     """
     ctx = mp.get_context("spawn")  # fork after torch/OpenMP use is unsafe
-    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(dataset,))
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(tuple(datasets),))
     procs: list[mp.process.BaseProcess] = []
     clean = False
     try:
@@ -195,7 +212,7 @@ def _pool_generate(dataset: GeneratedDataset, todo: list[int], workers: int, des
             p.join(timeout=5)
 
 
-def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str) -> str:
+def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str | Sequence[str]) -> str:
     for p in procs:
         p.join(timeout=1)
     dead = [p for p in procs if p.exitcode is not None and p.exitcode != 0]
@@ -217,7 +234,8 @@ def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str) -> str:
     else:
         how = "died"
     pid = f" (pid {killed[0].pid})" if killed else ""
-    split = f" of split {desc!r}" if desc else ""
+    names = [desc] if isinstance(desc, str) else [d for d in desc if d]
+    split = f" of split{'s' if len(names) > 1 else ''} {', '.join(map(repr, names))}" if any(names) else ""
     return (
         f"a generate worker process{pid}{split} {how}; the pool was stopped. The items finished so far are cached: "
         f"{RESUME_HINT}"
@@ -244,50 +262,97 @@ def pregenerate(
     Returns:
         :class:`GenerateStats`.
     """
-    if not dataset.cache.enabled:
-        raise ValueError("pregenerate needs a dataset with a cache directory (cache_dir=None disables caching)")
+    return pregenerate_splits({desc: dataset}, workers, shard, rank_world, progress)[0]
+
+
+def pregenerate_splits(
+    datasets: Mapping[str, GeneratedDataset],
+    workers: int | None = None,
+    shard: tuple[int, int] = (0, 1),
+    rank_world: tuple[int, int] | None = None,
+    progress: bool = True,
+) -> list[GenerateStats]:
+    """:func:`pregenerate` of several datasets (``name -> dataset``, e.g. a preset's splits) in one pool of workers.
+
+    The workers start and compile once for all of them and take the next item of any split as they free up, so the
+    splits do not each pay a pool's start and its one-worker tail. Items are handed out in the datasets' order.
+
+    Returns:
+        One :class:`GenerateStats` per dataset, in order. Their ``seconds`` count from the pool's start to the end of
+        that dataset's last item (the datasets share the time), so the run's throughput is the sum of their touches
+        over the last ``seconds`` (:func:`combined`).
+    """
     if workers is None:
         workers = os.cpu_count() or 1
     elif isinstance(workers, bool) or int(workers) != workers or workers < 1:  # 0 once meant "all cores" silently
         raise ValueError(f"workers must be a whole number >= 1 (leave it out for one per core), got {workers!r}")
     workers = int(workers)
-    remove_stale_tmp(dataset.cache.root)  # temporary files of killed runs, older than this job
-    indices = shard_indices(len(dataset), shard, rank_world)
-    stats = GenerateStats(items=len(indices))
-    todo = [i for i in indices if dataset.cache.load(cache_key(dataset.spec(i))) is None]
-    stats.skipped = len(indices) - len(todo)
-    if todo:  # a read-only cache is reported before any worker starts simulating
-        dataset.cache.check_writable(cache_key(dataset.spec(todo[0])))
-    per_item = dataset.touches_per_item
+    names, sets = list(datasets), list(datasets.values())
+    for ds in sets:
+        if not ds.cache.enabled:
+            raise ValueError("pregenerate needs a dataset with a cache directory (cache_dir=None disables caching)")
+    indices = [shard_indices(len(ds), shard, rank_world) for ds in sets]
+    stats = [GenerateStats(items=len(ix)) for ix in indices]
+    todo: list[tuple[int, int]] = []
+    for k, (ds, ix) in enumerate(zip(sets, indices)):
+        remove_stale_tmp(ds.cache.root)  # temporary files of killed runs, older than this job
+        mine = [i for i in ix if ds.cache.load(cache_key(ds.spec(i))) is None]
+        stats[k].skipped = len(ix) - len(mine)
+        if mine:  # a read-only cache is reported before any worker starts simulating
+            ds.cache.check_writable(cache_key(ds.spec(mine[0])))
+        todo += [(k, i) for i in mine]
+    per_item = [ds.touches_per_item for ds in sets]
     procs = 1 if workers == 1 or len(todo) <= 1 else min(workers, len(todo))
-    if todo:  # compile="auto": each process's share of the touches decides (before the dataset goes to the workers)
-        dataset.plan_compile(touches_per_process(len(todo), procs, per_item))
+    share = touches_per_process(len(todo), procs, max(per_item))  # the busiest process's touches, all splits
+    for k, ds in enumerate(sets):  # compile="auto": settled before the datasets go to the workers
+        if any(j == k for j, _ in todo):
+            ds.plan_compile(share)
+    left = [sum(1 for j, _ in todo if j == k) for k in range(len(sets))]
+    label = ", ".join(n for n, k in zip(names, left) if k) if len(sets) > 1 else names[0]
     bar = tqdm(
-        total=len(todo) * per_item,
-        desc=f"generate {desc}".strip(),
+        total=sum(per_item[k] for k, _ in todo),
+        desc=f"generate {label}".strip(),
         unit="touch",
         disable=not progress or not todo,
         dynamic_ncols=True,
     )
     start = time.perf_counter()
+
+    def done(k: int) -> None:
+        stats[k].generated += 1
+        stats[k].touches += per_item[k]
+        stats[k].seconds = time.perf_counter() - start
+        bar.update(per_item[k])
+
     try:
         if procs == 1:
-            for i in todo:
-                dataset.raw(i)
-                stats.generated += 1
-                bar.update(per_item)
+            for k, i in todo:
+                sets[k].raw(i)
+                done(k)
         else:
-            for _ in _pool_generate(dataset, todo, procs, desc):
-                stats.generated += 1
-                bar.update(per_item)
+            for k, _ in _pool_generate(sets, todo, procs, [n for n, c in zip(names, left) if c]):
+                done(k)
     finally:
         bar.close()
-        stats.seconds = time.perf_counter() - start
-        stats.touches = stats.generated * per_item
-    stats.bytes_written = sum(
-        p.stat().st_size for i in indices if (p := dataset.cache.path(cache_key(dataset.spec(i)))).is_file()
-    )
+        if not todo:
+            for st in stats:
+                st.seconds = time.perf_counter() - start
+    for st, ds, ix in zip(stats, sets, indices):
+        st.bytes_written = sum(p.stat().st_size for i in ix if (p := ds.cache.path(cache_key(ds.spec(i)))).is_file())
     return stats
+
+
+def combined(stats: Sequence[GenerateStats]) -> GenerateStats:
+    """The run of several :func:`pregenerate_splits` datasets as one: summed counts over the last one's time."""
+    out = GenerateStats()
+    for st in stats:
+        out.items += st.items
+        out.skipped += st.skipped
+        out.generated += st.generated
+        out.touches += st.touches
+        out.bytes_written += st.bytes_written
+        out.seconds = max(out.seconds, st.seconds)
+    return out
 
 
 # ---------------------------------------------------------------------- CLI
@@ -377,14 +442,20 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
     results = []
     cache = getattr(dm, "cache_dir", None)
     print(f"cache: {Path(cache).expanduser().resolve() if cache else 'disabled (cache_dir=null)'}", flush=True)
-    for name in splits:
-        ds = dm.make_dataset(name)
-        label = name if shard == (0, 1) else f"{name} shard {shard[0]}/{shard[1]}"  # jobs of a multirun interleave
-        st = pregenerate(ds, workers=workers, shard=shard, desc=label)
-        results.append(st)
+    # jobs of a multirun interleave: their lines name the shard
+    labels = {name: name if shard == (0, 1) else f"{name} shard {shard[0]}/{shard[1]}" for name in splits}
+    sets = {labels[name]: dm.make_dataset(name) for name in splits}
+    results = pregenerate_splits(sets, workers=workers, shard=shard)  # one pool of workers for every split
+    together = len(results) > 1 and sum(st.generated > 0 for st in results) > 1
+    for (label, ds), st in zip(sets.items(), results):
+        timing = (
+            f"done {st.seconds:.1f} s into the run"  # the splits shared the workers: the rate is the run's (below)
+            if together
+            else f"in {st.seconds:.1f} s = {st.touches_per_second:.2f} touches/s"
+        )
         print(
             f"[{label}] {st.items} items in shard, {st.skipped} cached, {st.generated} generated: {st.touches} touches "
-            f"in {st.seconds:.1f} s = {st.touches_per_second:.2f} touches/s; cache {st.bytes_written / 2**20:.2f} MiB "
+            f"{timing}; cache {st.bytes_written / 2**20:.2f} MiB "
             f"= {st.bytes_per_1000 / 2**20:.1f} MiB per 1000 samples ({Path(str(ds.cache.root)).resolve()})",
             flush=True,
         )
@@ -396,6 +467,13 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
                 f"({ex.bytes_copied / 2**20:.2f} MiB), {ex.present} already there, {ex.missing} not cached",
                 flush=True,
             )
+    if together:
+        run = combined(results)
+        print(
+            f"[{', '.join(sets)}] {run.generated} items generated: {run.touches} touches in {run.seconds:.1f} s = "
+            f"{run.touches_per_second:.2f} touches/s",
+            flush=True,
+        )
     return results
 
 
