@@ -40,6 +40,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import MeshStack, stacked_sdf_normal
+from tvrecon.sim.mpm.compiled.contact import contact_grid_available, fused_contact
 from tvrecon.sim.mpm.grid import Stencil, bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
 
@@ -333,6 +334,14 @@ def contact_passes(
     return gv, total
 
 
+def _compiled_passes(kernels: Callable[..., tuple[Tensor, Tensor]], args: tuple) -> tuple[Tensor, Tensor]:
+    """:func:`contact_passes` of ``args`` in a compiled step: on the CPU with one thread the C++ loop
+    (:mod:`tvrecon.sim.mpm.compiled.contact`, ~3x faster than inductor's atomic scatter), else the compiled kernel."""
+    if contact_grid_available(*args[:9]):
+        return fused_contact(*args, ITERATIONS)
+    return kernels("contact", *args)
+
+
 def particle_contact_grid(
     state: ParticleState,
     st: Stencil,
@@ -406,7 +415,7 @@ def particle_contact_grid(
                 dx,
                 dt,
             )
-            gv, total = kernels("contact", gv, *prep, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
+            gv, total = _compiled_passes(kernels, (gv, *prep, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt))
         force = gv.new_zeros(B, 3).index_add(0, scene, total)
         return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total.detach())
     slices = scene_slices(state.batch, B, block)
@@ -418,7 +427,7 @@ def particle_contact_grid(
         w = st.weights(cand)  # (27, K)
         setup = contact_setup(gv, node_mass, st.lin, w, shifts, cand, state.mass, alpha, hand_velocity, dt)
         args = (gv, *setup, phi, n, dt, mu_f, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)
-        gv, total = contact_passes(*args) if kernels is None else kernels("contact", *args)
+        gv, total = contact_passes(*args) if kernels is None else _compiled_passes(kernels, args)
     force = gv.new_zeros(B, 3).index_add(0, scene, total)
     return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total.detach())
 
