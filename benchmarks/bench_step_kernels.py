@@ -1,7 +1,7 @@
 """Where a compiled press step's time goes, kernel by kernel (not a test): one warm ``press_batch`` of the paper scene
 (``bench_gpu.py``'s: the authors' 61x61x10 pad, n_grid 128, one object's paper sweep) with every compiled kernel
-call (``CompiledKernels``) and the fused C++ transfers (``compiled.scatter.fused_p2g``, ``compiled.gather.fused_g2p``)
-timed by wall clock around the call.
+call (``CompiledKernels``) and the fused C++ loops (``compiled.scatter.fused_p2g``, ``compiled.gather.fused_g2p``,
+``compiled.contact.fused_contact``, ``compiled.polar.fused_polar``) timed by wall clock around the call.
 
     OMP_NUM_THREADS=1 python benchmarks/bench_step_kernels.py [--batch 10] [--device cpu]
 
@@ -30,6 +30,7 @@ from bench_gpu import _tile, paper_scene  # noqa: E402
 
 import tvrecon.sim.mpm.compiled.backend as backend  # noqa: E402
 import tvrecon.sim.mpm.compiled.step as compiled_step  # noqa: E402
+import tvrecon.sim.mpm.particle_contact as particle_contact  # noqa: E402
 import tvrecon.sim.mpm.solver as solver  # noqa: E402
 from tvrecon.sim import EIPSimulator  # noqa: E402
 
@@ -66,6 +67,8 @@ def main() -> None:
     backend.CompiledKernels.__call__ = lambda self, name, *a: timed(name, kernel_call)(self, name, *a)
     compiled_step.fused_p2g = timed("p2g (C++)", compiled_step.fused_p2g)
     compiled_step.fused_g2p = timed("g2p (C++)", compiled_step.fused_g2p)
+    particle_contact.fused_contact = timed("contact (C++)", particle_contact.fused_contact)
+    compiled_step.fused_polar = timed("polar (C++)", compiled_step.fused_polar)
     solver.fused_step = timed("fused_step", solver.fused_step)
 
     sensor, press, mesh, pos, dirs, strength = paper_scene(args.device)

@@ -31,6 +31,8 @@ from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels
 from tvrecon.sim.mpm.compiled.gather import fused_g2p, g2p_grid_available
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
+from tvrecon.sim.mpm.compiled.kernels import NEWTON_ITERS
+from tvrecon.sim.mpm.compiled.polar import fused_polar, polar_grid_available
 from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
 from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, share_node_force
 from tvrecon.sim.mpm.materials import polar_decomposition
@@ -157,7 +159,10 @@ def fused_step(
     if exact_polar:
         Rt = polar_decomposition(state.F).reshape(P, 9).T.contiguous()
     else:
-        Rt, converged = k("polar", Ft, stop)
+        if polar_grid_available(Ft):  # CPU, one thread: 8 particles at a time, until they converge (compiled.polar)
+            Rt, converged = fused_polar(Ft, stop, NEWTON_ITERS)
+        else:
+            Rt, converged = k("polar", Ft, stop)
         if defer_polar:
             polar_ok = converged
         elif not bool(converged):  # rare: a particle needs more Newton steps (or F is singular: eager raises)
