@@ -30,6 +30,7 @@ from bench_gpu import _tile, paper_scene  # noqa: E402
 
 import tvrecon.sim.mpm.compiled.backend as backend  # noqa: E402
 import tvrecon.sim.mpm.compiled.step as compiled_step  # noqa: E402
+import tvrecon.sim.mpm.free_flight as free_flight  # noqa: E402
 import tvrecon.sim.mpm.particle_contact as particle_contact  # noqa: E402
 import tvrecon.sim.mpm.solver as solver  # noqa: E402
 from tvrecon.sim import EIPSimulator  # noqa: E402
@@ -69,6 +70,7 @@ def main() -> None:
     compiled_step.fused_g2p = timed("g2p (C++)", compiled_step.fused_g2p)
     particle_contact.fused_contact = timed("contact (C++)", particle_contact.fused_contact)
     compiled_step.fused_polar = timed("polar (C++)", compiled_step.fused_polar)
+    free_flight.FreeFlight.step = timed("free flight", free_flight.FreeFlight.step)  # tried every step until contact
     solver.fused_step = timed("fused_step", solver.fused_step)
 
     sensor, press, mesh, pos, dirs, strength = paper_scene(args.device)

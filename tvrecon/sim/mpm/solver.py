@@ -28,6 +28,7 @@ from tvrecon.sim.mpm.compiled.backend import CompiledKernels, CompileFailed, com
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
 from tvrecon.sim.mpm.compiled.policy import mark_compile_cache_warm
 from tvrecon.sim.mpm.compiled.step import fused_step, particle_force
+from tvrecon.sim.mpm.free_flight import FreeFlight
 from tvrecon.sim.mpm.grid import (
     Stencil,
     Transfer,
@@ -110,6 +111,10 @@ class MLSMPM:
     #: (``pending_polar_ok``; ``materials.polar_decomposition_fixed``) instead of a read each iteration: None = on CUDA
     #: only (the CPU's iterating loop drops converged particles, which pays more than the sync costs there)
     deferred_polar: bool | None = None
+    #: a step of a zero-stress rigidly moving state that no body pushes is a translation (:mod:`.free_flight`; equal
+    #: to the real step to round-off): tried until the solver's first real step. The press loop turns it on (its pad
+    #: starts moving with the hand, a gap from the object: ~30% of the authors' pad's steps)
+    free_flight: bool = False
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu", compile: bool | None = None) -> None:
         if cfg.n_grid < 4:
@@ -161,6 +166,7 @@ class MLSMPM:
         self.pending_polar_ok: Tensor | None = None
         self.exact_polar = False
         self.last_dims: list[int] | None = None  # the block dims of the last step (eager or compiled)
+        self.flight = FreeFlight()  # the free-flight steps taken (``free_flight``)
 
     @property
     def compiled(self) -> bool:
@@ -252,7 +258,20 @@ class MLSMPM:
             if len(colliders) != B:
                 raise ValueError(f"collider sequence must have one entry per scene (B={B}), got {len(colliders)}")
         self.pending_polar_ok = None
-        if self.needs_grad(state, hand_velocity, alpha):
+        grad = self.needs_grad(state, hand_velocity, alpha)
+        if self.free_flight and not self.flight.over:
+            new = None
+            if not grad and self.cfg.contact == "particle" and self.cfg.damping == 0:
+                with torch.no_grad():
+                    new = self.flight.step(
+                        state, colliders, hand_velocity, alpha, B, block, self.dx, self.dt, self._mesh_stack,
+                        self._kernels,
+                    )  # fmt: skip
+            if new is not None:
+                self._after_free_step(state, new, B, block)
+                return new
+            self.flight.end()  # a real step from here on
+        if grad:
             new = self._step(state, colliders, hand_velocity, alpha, B, block)
         else:
             with torch.no_grad():
@@ -266,6 +285,17 @@ class MLSMPM:
                     new = self._step(state, colliders, hand_velocity, alpha, B, block)
         self._plan_drift(new)
         return new
+
+    def _after_free_step(self, state: ParticleState, new: ParticleState, B: int, block: int | None) -> None:
+        """What a real step leaves for its caller, after a free-flight step: no contact force, the grid speed of the
+        translation (the nodes carry the particles' v), the next step's layout and the contact's drift."""
+        self.last_force = state.x.new_zeros(B, 3)
+        self._particle_contact_force = self.flight.zero_forces(state.x)
+        self._speed_check(self.flight.speed)
+        self._next_layout, self.pending_bounds = None, None
+        if self.defer_checks and self._deferred_polar(new.x.device):  # the GPU's layout, as _fused_step plans it
+            self._plan_layout(new, B, block)
+        self._plan_drift(new)
 
     def _plan_drift(self, state: ParticleState) -> None:
         """With ``defer_checks``: ``pending_drift``, how far the particles of ``state`` moved since the particle
@@ -583,10 +613,10 @@ class MLSMPM:
             (P, 3) force on each particle (domain axes, simulation units), detached.
         """
         transfer, contact_force = self.force_source() if source is None else source
+        if self.cfg.contact == "particle" and contact_force is not None:  # the colliders acted on the particles
+            return contact_force  # their own forces (zero after a free-flight step, which has no transfer)
         if transfer is None:
             raise RuntimeError("last_particle_force needs a step first")
-        if self.cfg.contact == "particle":  # the collider acted on the particles: their own forces
-            return contact_force  # type: ignore[return-value]
         ref = transfer.node_force
         o_int = self._constants(ref.dtype, ref.device)[2]
         if self._kernels is not None:  # compiled: one fused gather (same terms, compiled.step.particle_force)

@@ -43,6 +43,11 @@ from tvrecon.sim.press.stop_rules import (
 from tvrecon.sim.sensor.forces import column_force_field
 from tvrecon.sim.sensor.pad import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice
 
+#: the press's steps before the pad meets the object are translations (``MLSMPM.free_flight``, :mod:`tvrecon.sim.mpm.
+#: free_flight`: the pad starts at zero stress, moving with the hand, ``gap`` cells away); False: every step is a full
+#: MLS-MPM step (the readings agree to float32 round-off)
+FREE_FLIGHT = True
+
 
 class Phase(enum.Enum):
     APPROACH = "approach"
@@ -217,6 +222,7 @@ class PressLoop:
         work = touch_work(P, int(p.n_grid))
         solver = MLSMPM(self.mcfg, device=dev, compile=resolve_compile(self.compile, len(places), dev, work=work)[0])
         solver.defer_checks = True  # its grid speed check rides on the step's one host read below
+        solver.free_flight = FREE_FLIGHT  # the pad's approach with the hand: translated until it meets the body
         x0_contact = self.x0_contact = x_rest[:HW] / dx  # (HW, 3) cells
         lattice = (H, W, float(s.spacing))
         # the threshold rule's bound of every touch, read with the step's one host read (StopCheck.memo)
