@@ -54,15 +54,12 @@ def moves_rigidly(state: ParticleState, hand_velocity: Tensor | None, alpha: Ten
     every particle's ``v`` the same, and where ``alpha`` is given (paper eq. 8) the hand velocity (3,) or (P, 3)
     equal to it (None: a hand at rest, so ``v`` must be zero)."""
     v0 = state.v[:1]  # (1, 3)
-    if not (bool((state.C == 0).all()) and bool((state.v == v0).all())):
-        return False
     eye = torch.eye(3, dtype=state.F.dtype, device=state.F.device)
-    if not bool((state.F == eye).all()):
-        return False
-    if alpha is None:
-        return True
-    hv = torch.zeros_like(v0) if hand_velocity is None else hand_velocity.reshape(-1, 3)
-    return bool((hv == v0).all())
+    ok = (state.C == 0).all() & (state.v == v0).all() & (state.F == eye).all()
+    if alpha is not None:
+        hv = torch.zeros_like(v0) if hand_velocity is None else hand_velocity.reshape(-1, 3)
+        ok = ok & (hv == v0).all()
+    return bool(ok)  # one host read
 
 
 def contact_free(
@@ -76,11 +73,12 @@ def contact_free(
     dt: float,
     stack: MeshStackCache | None = None,
     kernels: Callable[..., Tensor] | None = None,
-) -> bool:
-    """Whether the particle contact of a step from positions ``x`` (P, 3) at velocities ``v`` (P, 3) pushes no particle:
+) -> Tensor:
+    """0-dim bool: the particle contact of a step from positions ``x`` (P, 3) at velocities ``v`` (P, 3) pushes no
+    particle:
     for every candidate within a cell of its body (:func:`~tvrecon.sim.mpm.particle_contact.near_surface`, the step's
     own search; with stacked mesh colliders and the compiled ``kernels``, their prefilter kernel as the compiled step
-    runs it), ``normal_floor(phi) - v . n < -MARGIN |v|`` (one host read)."""
+    runs it), ``normal_floor(phi) - v . n < -MARGIN |v|``. Not read here: the caller reads it."""
     if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
         mesh, cand, scene = stacked_candidates(x, colliders, batch, dx, stack, block, kernels)
         phi, n = mesh.sdf_normal(x[cand], scene)
@@ -88,17 +86,21 @@ def contact_free(
     else:
         cand, _, phi, n = near_surface(x, colliders, scene_slices(batch, B, block), dx, batch, stack, block)
     if not cand.numel():
-        return True
+        return torch.ones((), dtype=torch.bool, device=x.device)
     vc = v[cand]  # (K, 3)
     floor = normal_floor(phi.to(x.dtype), dt, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)  # (K,)
     need = floor - (vc * n.to(x.dtype)).sum(1)  # > 0: the body pushes
-    speed = float(vc.abs().amax()) if vc.numel() else 0.0
-    return bool(need.amax() < -MARGIN * speed)  # NaN: not free
+    return (need + MARGIN * vc.abs().amax()).amax() < 0  # NaN: not free
 
 
 class FreeFlight:
     """A solver's free-flight steps (``MLSMPM.free_flight``): :meth:`step` returns the translated state, or None when
-    the step must be a real one; after :meth:`end` (the solver's first real step) it always returns None."""
+    the step must be a real one; after :meth:`end` (the solver's first real step) it always returns None.
+
+    With ``defer`` (the solver's ``defer_checks``: a caller that reads the step's pending values, as the press loop
+    does) the step is taken on speculation and its contact test left in ``pending`` (0-dim bool) for the caller's
+    own host read: where it reads False, it calls :meth:`end` and runs the step again (a real one). A free step then
+    costs no host read of its own, on the GPU as on the CPU; the one step taken in vain is a translation."""
 
     def __init__(self) -> None:
         self.over = False
@@ -107,10 +109,12 @@ class FreeFlight:
         self._trusted: tuple[Tensor | None, ...] | None = None
         self.speed: Tensor | None = None  # 0-dim: the largest velocity component of the trusted state (grid speed)
         self._zeros: Tensor | None = None  # (P, 3) zero contact forces, shared by the free steps
+        self.last = False  # the last call took a free step
+        self.pending: Tensor | None = None  # with defer: the last free step's contact test, for the caller's read
 
     def end(self) -> None:
-        self.over = True
-        self._trusted = self.speed = self._zeros = None
+        self.over, self.last = True, False
+        self._trusted = self.speed = self._zeros = self.pending = None
 
     def zero_forces(self, like: Tensor) -> Tensor:
         """(P, 3) zeros like ``like`` (one tensor for every free step; its readers do not write to it)."""
@@ -137,19 +141,23 @@ class FreeFlight:
         dt: float,
         stack: MeshStackCache | None = None,
         kernels: Callable[..., Tensor] | None = None,
+        defer: bool = False,
     ) -> ParticleState | None:
         """``state`` advanced by ``dt`` as a translation when it moves rigidly and no body pushes a particle this step
         (None: run the real step). No autograd (the caller's ``torch.no_grad``). ``kernels``: the solver's compiled
-        backend (its mesh prefilter), or None."""
+        backend (its mesh prefilter), or None. ``defer``: the contact test is left to the caller (``pending``)."""
+        self.last, self.pending = False, None
         if self.over:
             return None
         if not self._known(state, hand_velocity, alpha):
             if not moves_rigidly(state, hand_velocity, alpha):
                 return None
             self.speed = state.v.abs().amax() if state.v.numel() else torch.zeros((), device=state.v.device)
-        if not contact_free(state.x, state.v, colliders, state.batch, B, block, dx, dt, stack, kernels):
+        free = contact_free(state.x, state.v, colliders, state.batch, B, block, dx, dt, stack, kernels)
+        if not defer and not bool(free):  # one host read
             return None
         new = replace(state, x=state.x + dt * state.v)  # G2P's advection with v unchanged; C, F, v are kept
         self._trusted = (new.x, new.v, new.C, new.F, hand_velocity, alpha)
-        self.steps += 1
+        self.steps += 1  # with defer also the one the caller refuses
+        self.last, self.pending = True, free if defer else None
         return new

@@ -113,7 +113,8 @@ class MLSMPM:
     deferred_polar: bool | None = None
     #: a step of a zero-stress rigidly moving state that no body pushes is a translation (:mod:`.free_flight`; equal
     #: to the real step to round-off): tried until the solver's first real step. The press loop turns it on (its pad
-    #: starts moving with the hand, a gap from the object: ~30% of the authors' pad's steps)
+    #: starts moving with the hand, a gap from the object: ~30% of the authors' pad's steps). With ``defer_checks``
+    #: its contact test comes in ``pending_polar_ok`` (False: the caller calls ``flight.end()`` and steps again)
     free_flight: bool = False
 
     def __init__(self, cfg: MPMConfig, device: str | torch.device = "cpu", compile: bool | None = None) -> None:
@@ -265,10 +266,10 @@ class MLSMPM:
                 with torch.no_grad():
                     new = self.flight.step(
                         state, colliders, hand_velocity, alpha, B, block, self.dx, self.dt, self._mesh_stack,
-                        self._kernels,
+                        self._kernels, defer=self.defer_checks,
                     )  # fmt: skip
             if new is not None:
-                self._after_free_step(state, new, B, block)
+                self._after_free_step(state, new, B)
                 return new
             self.flight.end()  # a real step from here on
         if grad:
@@ -286,15 +287,16 @@ class MLSMPM:
         self._plan_drift(new)
         return new
 
-    def _after_free_step(self, state: ParticleState, new: ParticleState, B: int, block: int | None) -> None:
+    def _after_free_step(self, state: ParticleState, new: ParticleState, B: int) -> None:
         """What a real step leaves for its caller, after a free-flight step: no contact force, the grid speed of the
-        translation (the nodes carry the particles' v), the next step's layout and the contact's drift."""
+        translation (the nodes carry the particles' v), the contact test (``pending_polar_ok``) and drift."""
         self.last_force = state.x.new_zeros(B, 3)
         self._particle_contact_force = self.flight.zero_forces(state.x)
         self._speed_check(self.flight.speed)
+        self.pending_polar_ok = self.flight.pending  # with defer_checks: the caller reads the contact test here
+        # no layout planned: a window of free steps (PressLoop.read_every) then trusts no block dims, and the first
+        # real step reads its own bounds
         self._next_layout, self.pending_bounds = None, None
-        if self.defer_checks and self._deferred_polar(new.x.device):  # the GPU's layout, as _fused_step plans it
-            self._plan_layout(new, B, block)
         self._plan_drift(new)
 
     def _plan_drift(self, state: ParticleState) -> None:

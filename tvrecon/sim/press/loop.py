@@ -271,10 +271,14 @@ class PressLoop:
         return max(1, min(int(k), self.max_steps - max(tc.steps for tc in runs)))
 
     def _one_step(self, go: _Go, state: ParticleState, disp: Tensor, n: int) -> _Step:
-        """One step and its host read (the polar's fixed steps redone iterating when they did not converge), the
-        solver's deferred checks applied."""
+        """One step and its host read (a free-flight step whose contact test failed redone as a real step, the polar's
+        fixed steps redone iterating when they did not converge), the solver's deferred checks applied."""
         st = self._advance(go, state, disp, n)
         host = st.host_tensor.tolist()
+        if host[4] == 0.0 and go.solver.flight.last:  # a free-flight step whose contact test failed: a real step
+            go.solver.flight.end()
+            st = self._advance(go, state, disp, n)
+            host = st.host_tensor.tolist()
         if host[4] == 0.0:  # a particle's fixed-step polar did not converge: the step again, iterating to the end
             go.solver.exact_polar = True
             try:
@@ -418,7 +422,8 @@ class PressLoop:
     def _advance(self, go: _Go, state: ParticleState, disp: Tensor, n: int) -> _Step:
         """Step ``n`` of the B scenes, and the values of its host read as one device vector (not read here): the
         contact layers' lowest and highest coordinate (divergence), the solver's grid speed, the particles' drift since
-        the contact's kept search (NaN: none kept), whether the fixed-step polar converged (1.0 when not deferred),
+        the contact's kept search (NaN: none kept), whether the fixed-step polar converged (1.0 when not deferred) or
+        a free-flight step's contact test held (``MLSMPM.free_flight``),
         the B normal forces (the stop rules), the 9 bounds of the next step's blocks when planned, then the threshold
         rule's sums when it runs."""
         solver, B, P = go.solver, go.B, go.P
