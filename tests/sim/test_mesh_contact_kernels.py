@@ -15,6 +15,7 @@ from tvrecon.sim.bodies.mesh_stack import MeshStack, near_blocks
 from tvrecon.sim.mpm.compiled import backend
 from tvrecon.sim.mpm.grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.particle_contact import contact_setup, mesh_contact
+from tvrecon.sim.press import loop as press_loop
 
 
 def test_near_blocks_and_mesh_contact_equal_the_eager_search():
@@ -69,6 +70,7 @@ def test_compiled_mesh_press_batch_uses_the_mesh_kernels_and_matches_eager(monke
     press = PressConfig(n_grid=48, contact="particle", collider_refine=refine)
     pos = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]]
     dirs = [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+    monkeypatch.setattr(press_loop, "FREE_FLIGHT", False)  # every step a full one (free flight: test_free_flight.py)
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
     used: dict[str, int] = {}
     call = backend.CompiledKernels.__call__

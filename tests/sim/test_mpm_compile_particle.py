@@ -67,9 +67,10 @@ def test_compiled_particle_contact_press_images_match_eager(monkeypatch):
     cells (the stated tolerance of ``compile=True`` readings), force within 1e-5."""
     import trimesh
 
-    from tvrecon.sim.press import EIPSimulator, PressConfig
+    from tvrecon.sim.press import EIPSimulator, PressConfig, loop
     from tvrecon.sim.sensor.pad import SensorConfig
 
+    monkeypatch.setattr(loop, "FREE_FLIGHT", False)  # every step a full one (free flight: test_free_flight.py)
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor, press = SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=48, contact="particle")
     pos, d = [0.0, 0.0, 0.3], [0.0, 0.0, -1.0]

@@ -13,6 +13,7 @@ from test_mpm_compile import needs_compiler
 from tvrecon.sim.mpm import particle_contact
 from tvrecon.sim.mpm.compiled import contact
 from tvrecon.sim.mpm.particle_contact import ITERATIONS, PUSH_CAP_CELLS, PUSH_OUT, contact_passes, contact_setup
+from tvrecon.sim.press import loop as press_loop
 
 
 def _passes_inputs(hand: bool, seed: int = 0):
@@ -80,6 +81,7 @@ def test_compiled_mesh_press_runs_the_fused_passes(one_thread, monkeypatch):
     sensor = SensorConfig(resolution=(12, 12), layers=4)
     press = PressConfig(n_grid=48, contact="particle")
     pos, dirs = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]], [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+    monkeypatch.setattr(press_loop, "FREE_FLIGHT", False)  # every step a full one (free flight: test_free_flight.py)
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
     calls = []
 
