@@ -264,10 +264,13 @@ class MLSMPM:
             new = None
             if not grad and self.cfg.contact == "particle" and self.cfg.damping == 0:
                 with torch.no_grad():
-                    new = self.flight.step(
-                        state, colliders, hand_velocity, alpha, B, block, self.dx, self.dt, self._mesh_stack,
-                        self._kernels, defer=self.defer_checks,
-                    )  # fmt: skip
+                    try:
+                        new = self.flight.step(
+                            state, colliders, hand_velocity, alpha, B, block, self.dx, self.dt, self._mesh_stack,
+                            self._kernels, defer=self.defer_checks,
+                        )  # fmt: skip
+                    except CompileFailed:  # the compiled prefilter failed (warned once): eager from now on
+                        self._kernels = None
             if new is not None:
                 self._after_free_step(state, new, B)
                 return new
