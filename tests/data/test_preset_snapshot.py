@@ -12,7 +12,10 @@ the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon
 was then added to ``press/eip_cpu`` (the object's table at the authors' spacing, so that thin parts are felt on the 64
 grid): the presets on that block (``small``, ``cls_paper_cpu``, ``cls_sweep_cpu`` and their experiments) gained the key
 in both fixtures, and their cache keys changed with it. ``tvrecon-data-6`` (the distance table over distinct surface
-samples) changed every key and no value.
+samples) changed every key and no value. ``touch.start: outside`` (each paper touch's position where its centre line
+leaves the object, so a cube pressed at 45 degrees is no longer rejected and re-drawn off the sweep) was added to every
+preset on ``touch/paper_sweep``; it enters the policy's cache key, so those presets' keys changed and the cone
+presets' did not.
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update

@@ -48,7 +48,11 @@ def test_policy_aims_through_the_centre_sweeps_evenly_and_sizes_the_depth() -> N
     box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
     box.apply_translation([0.2, -0.1, 0.05])
     t = sample_touches(box, 10, seed=3, policy=make_touch_policy(_block("touch", "paper_sweep")), sim=sim)
-    assert torch.allclose(t.positions, torch.tensor(box.bounds.mean(0), dtype=torch.float32).expand(10, 3))
+    off = t.positions.double() - torch.tensor(box.bounds.mean(0))  # (10, 3) from the centre to each start
+    d = t.directions.double()
+    assert torch.linalg.cross(off, d).norm(dim=1).max() < 1e-6  # on the centre line through the box's centre
+    ahead = (torch.tensor(box.vertices) - t.positions.double()[:, None]) @ -d[:, :, None]  # (10, 8, 1) along -d
+    assert ahead.max() < 1e-5 and ahead.amax(dim=1).min() > -1e-5  # the start bounds the box on the pad's side
     elev = np.degrees(np.arcsin(-t.directions[:, 2].double().numpy()))
     assert np.allclose(elev, np.linspace(0.0, 90.0, 10), atol=1e-4)
     horizontal = t.directions[:-1, :2].double().numpy()
@@ -70,6 +74,29 @@ def test_policy_needs_the_simulator_and_checks_its_fields() -> None:
         PaperSweepTouchPolicy(elevation_deg=[0.0, 120.0])
     with pytest.raises(ValueError, match="aim"):
         PaperSweepTouchPolicy(aim="corner")
+    with pytest.raises(ValueError, match="start"):
+        PaperSweepTouchPolicy(start="inside")
+
+
+def test_a_cube_pressed_at_45_degrees_is_placed_from_outside_on_the_authors_grid() -> None:
+    """On the authors' 128 grid a cube reaches 0.71 of its side (14.5 cells) from its centre along a 45-degree press,
+    past the 12 cells in front of the aim where the pad's rays start: aimed from the centre the pad is placed inside
+    it and the touch is rejected (the dataset then re-drew it off the sweep); started where the centre line leaves
+    the cube, the same touch is placed with its touch point on the cube's corner plane."""
+    sim = EIPSimulator(SensorConfig(**_block("sensor", "eip")), PressConfig(**_block("press", "eip")))
+    cube = trimesh.creation.box()
+    cell = sim.cfg.domain_size / sim.cfg.n_grid
+    for start in ("centre", "outside"):
+        t = sample_touches(cube, 1, seed=0, policy=PaperSweepTouchPolicy(elevation_deg=[45, 45], start=start), sim=sim)
+        if start == "centre":
+            with pytest.raises(ValueError, match="start inside the object"):
+                sim.place_batch(cube, t.positions, t.directions)
+            continue
+        (placed,) = sim.place_batch(cube, t.positions, t.directions)
+        assert placed.reachable
+        reach = float((torch.tensor(cube.vertices, dtype=torch.float32) @ -t.directions[0]).max())
+        assert reach > 0.7 and float(placed.origin @ -t.directions[0]) == pytest.approx(reach, abs=1.5 * cell)
+        assert float(torch.linalg.cross(placed.origin, t.directions[0]).norm()) < 1e-4  # still through the centre
 
 
 @pytest.mark.parametrize(
@@ -165,4 +192,5 @@ def test_shuffled_order_is_the_same_sweep_and_sweep_order_keeps_the_key() -> Non
     assert torch.allclose(shuffled.directions[order], swept.directions, atol=1e-6)
     assert not torch.allclose(shuffled.directions, swept.directions)
     assert "order" not in PaperSweepTouchPolicy().cache_spec()  # the default stays out of the cache key
+    assert PaperSweepTouchPolicy().cache_spec()["start"] == "outside"  # caches of centre starts are not misread
     assert PaperSweepTouchPolicy(order="shuffled").cache_spec()["order"] == "shuffled"

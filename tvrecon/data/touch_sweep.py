@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from tvrecon.sim.press.simulator import EIPSimulator
     from tvrecon.sim.sensor.pad import SensorConfig
 
-__all__ = ["PaperSweepTouchPolicy", "eip_geometry_ratios", "sweep_directions"]
+__all__ = ["PaperSweepTouchPolicy", "eip_geometry_ratios", "outside_start", "sweep_directions"]
 
 #: The authors' geometry at n_grid 128 (yikaiw/EIP): object max extent / domain, pad side / object, pad thickness /
 #: object, press depth past first contact / object.
@@ -81,6 +81,11 @@ class PaperSweepTouchPolicy(TouchPolicy):
         order: ``"sweep"`` (the touches in sweep order, side first) or ``"shuffled"`` (the same sweep in a random
             order). Reconstruction samples use the first T cached touches, so their presets shuffle: the first two
             touches are then any two of the sweep, not the two side ones. Classification draws its own touches.
+        start: where on the centre line each touch's ``position`` is: ``"outside"`` (the plane that bounds the object
+            on the pad's side, :func:`outside_start`) or ``"centre"`` (the aim point itself; the pad then finds the
+            object from rays that start only ``clearance_cells`` in front of it, which lie inside an object that
+            reaches farther along the press, e.g. a cube pressed at 45 degrees: that touch is rejected and re-drawn
+            off the sweep. Kept to read caches made before ``"outside"``).
     """
 
     elevation_deg: Sequence[float] = (0.0, 90.0)
@@ -88,6 +93,7 @@ class PaperSweepTouchPolicy(TouchPolicy):
     azimuth_jitter_deg: float = 0.0
     aim: str = "centre"
     order: str = field(default="sweep", metadata=OMIT_IF_DEFAULT)
+    start: str = "outside"
 
     def __post_init__(self) -> None:
         what = type(self).__name__
@@ -108,6 +114,8 @@ class PaperSweepTouchPolicy(TouchPolicy):
             raise ValueError(f"{what}.aim must be 'centre' or 'centroid', got {self.aim!r}")
         if self.order not in ("sweep", "shuffled"):
             raise ValueError(f"{what}.order must be 'sweep' or 'shuffled', got {self.order!r}")
+        if self.start not in ("outside", "centre"):
+            raise ValueError(f"{what}.start must be 'outside' or 'centre', got {self.start!r}")
 
     def sample(self, mesh, n, rng, camera=None, sim=None) -> Touches:  # the arguments of TouchPolicy.sample
         if sim is None:
@@ -125,8 +133,9 @@ class PaperSweepTouchPolicy(TouchPolicy):
         if self.order == "shuffled":
             perm = rng.permutation(n)
             dirs, which = dirs[perm], which[perm]
+        positions = outside_start(mesh, centre, dirs) if self.start == "outside" else np.repeat(centre[None], n, 0)
         return Touches(
-            positions=torch.as_tensor(np.repeat(centre[None], n, axis=0), dtype=torch.float32),
+            positions=torch.as_tensor(positions, dtype=torch.float32),
             directions=torch.as_tensor(dirs, dtype=torch.float32),
             normals=torch.as_tensor(-dirs, dtype=torch.float32),  # the face the pad meets: against the press
             strengths=[{"depth": round(self.depth_fractions[i] * extent_cells, 4)} for i in which],
@@ -136,6 +145,29 @@ class PaperSweepTouchPolicy(TouchPolicy):
     def extent_cells(mesh: trimesh.Trimesh, sim: EIPSimulator) -> float:
         """The object's max extent in the press's grid cells."""
         return float(np.max(mesh.extents)) / float(sim.cfg.domain_size) * int(sim.cfg.n_grid)
+
+
+def outside_start(mesh: trimesh.Trimesh, aim: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Each touch's start on its centre line: where the line leaves the slab the object fills along the press.
+
+    ``aim - s d`` with ``s = max_v (v - aim) . (-d)`` over the mesh's vertices: the object lies wholly behind the plane
+    through that point normal to ``d``, so the pad's footprint rays (cast from ``clearance_cells`` in front of the
+    position, ``tvrecon.sim.press.placement.place_touch``) start outside it and meet its first surface, however far
+    the object reaches along the press from ``aim`` (a cube's corner at 45 degrees: 0.71 of its side, 14.5 cells of
+    the authors' 128 grid, past the 12 cells in front of the aim where the rays would start). The touch is the same:
+    the pad's frame, touch point and press follow from the centre line and the first surface it meets.
+
+    Args:
+        mesh: the object, world coordinates. aim: (3,) the point every centre line passes through.
+        directions: (T, 3) unit press directions (into the object).
+
+    Returns:
+        (T, 3) float64 positions.
+    """
+    d = np.asarray(directions, dtype=np.float64)
+    check_shape(d, "(T, 3)", "directions")
+    reach = ((np.asarray(mesh.vertices, dtype=np.float64) - aim) @ -d.T).max(axis=0)  # (T,) extent towards the pad
+    return aim[None] - np.maximum(reach, 0.0)[:, None] * d
 
 
 def eip_geometry_ratios(sensor: SensorConfig, press: PressConfig, object_extent: float = 1.0) -> dict[str, float]:
