@@ -59,8 +59,9 @@ def main() -> None:
     warm = make_shape(names[0], 0)
     t = sample_touches(warm, 2, seed=0, policy=policy, sim=sim)
     sim.press_batch(warm, t.positions, t.directions, **t.strengths[0])
-    rows: dict[float, dict[str, list]] = {f: {"cpu": [], "steps": [], "diverged": [], "max": [], "mean": [],
-                                             "force": [], "contact": []} for f in factors}
+    rows: dict[float, dict[str, list]] = {
+        f: {"cpu": [], "steps": [], "diverged": [], "max": [], "mean": [], "force": [], "contact": []} for f in factors
+    }
     for i, name in enumerate(names):
         mesh = make_shape(name, 0)
         t = sample_touches(mesh, 10, seed=100 + i, policy=policy, sim=sim)
@@ -87,8 +88,11 @@ def main() -> None:
                 fa, fb = float(a.force.norm()), float(b.force.norm())
                 r["force"].append(abs(fa - fb) / max(fb, 1e-12))
                 r["contact"].append(bool(a.contact) != bool(b.contact))
-            print(f"{name:12s} x{f:<4g} {cpu:6.3f} CPU-s/touch, {r['steps'][-1]} steps, image max diff "
-                  f"{max(r['max'][-len(out):]):.3f} cells", flush=True)
+            print(
+                f"{name:12s} x{f:<4g} {cpu:6.3f} CPU-s/touch, {r['steps'][-1]} steps, image max diff "
+                f"{max(r['max'][-len(out) :]):.3f} cells",
+                flush=True,
+            )
     summary = {}
     base_cpu = statistics.median(rows[1.0]["cpu"]) if rows.get(1.0) and rows[1.0]["cpu"] else None
     print(f"\n{args.preset}: {len(names)} objects x 10 touches, cfl_dt = {dt0:.4g} s; reference x{factors[0]:g}")
@@ -110,13 +114,16 @@ def main() -> None:
         }
         summary[f] = s
         speed = f"{base_cpu / s['cpu_per_touch']:5.2f}x" if base_cpu else "  -  "
-        print(f"x{f:<5g} {s['cpu_per_touch']:11.3f}  {speed}  {s['steps']:5.0f}  {len(s['diverged']):8d}  "
-              f"{s['image_max_diff']:13.3f} / {s['image_mean_diff']:.4f}  {s['force_rel_diff_median']:9.4f} "
-              f"(max {s['force_rel_diff_max']:.3f})  {s['contact_flips']:5d}")
+        print(
+            f"x{f:<5g} {s['cpu_per_touch']:11.3f}  {speed}  {s['steps']:5.0f}  {len(s['diverged']):8d}  "
+            f"{s['image_max_diff']:13.3f} / {s['image_mean_diff']:.4f}  {s['force_rel_diff_median']:9.4f} "
+            f"(max {s['force_rel_diff_max']:.3f})  {s['contact_flips']:5d}"
+        )
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"preset": args.preset, "objects": names, "cfl_dt": dt0, "factors": summary},
-                                       indent=1) + "\n")
+        args.out.write_text(
+            json.dumps({"preset": args.preset, "objects": names, "cfl_dt": dt0, "factors": summary}, indent=1) + "\n"
+        )
 
 
 if __name__ == "__main__":
