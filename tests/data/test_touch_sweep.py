@@ -194,3 +194,26 @@ def test_shuffled_order_is_the_same_sweep_and_sweep_order_keeps_the_key() -> Non
     assert "order" not in PaperSweepTouchPolicy().cache_spec()  # the default stays out of the cache key
     assert PaperSweepTouchPolicy().cache_spec()["start"] == "outside"  # caches of centre starts are not misread
     assert PaperSweepTouchPolicy(order="shuffled").cache_spec()["order"] == "shuffled"
+
+
+def test_a_touch_the_simulator_rejects_is_redrawn_with_a_warning_naming_the_item(caplog, tmp_path: Path) -> None:
+    """With the old centre start on the authors' grid, the cube's 45-degree touches are rejected (the pad would start
+    inside it); the dataset re-draws them one by one, off the sweep, and says so once, naming the item (control: the
+    touches that were placed are kept as drawn)."""
+    ds = TactileClassificationDataset(
+        num_objects=1,
+        classes=["cube"],
+        touches_per_object=10,
+        touch={**_block("touch", "paper_sweep"), "start": "centre"},
+        cache_dir=tmp_path,
+        sensor=_block("sensor", "eip"),
+        press=_block("press", "eip"),
+    )
+    mesh = ds.mesh(0)
+    touches = sample_touches(mesh, 10, seed=7, policy=ds.touch, sim=ds.simulator)
+    with caplog.at_level("WARNING", logger="tvrecon.data.generated_dataset"):
+        fixed = ds._placeable_touches(mesh, touches, seed=7, index=0)
+    kept = (fixed.directions == touches.directions).all(dim=1)
+    assert 0 < int((~kept).sum()) < 10
+    (msg,) = [r.getMessage() for r in caplog.records if "re-drawn" in r.getMessage()]
+    assert "item 0 (cube 0)" in msg and f"{int((~kept).sum())} of 10 touches" in msg and "start inside" in msg

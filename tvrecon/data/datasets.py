@@ -138,7 +138,7 @@ class ReconstructionDataset(GeneratedDataset):
         camera = self.camera(index)
         view = render_view(mesh, camera, seed=view_seed, ambient=self.render.ambient, background=self.render.background)
         points, faces = trimesh.sample.sample_surface(mesh, self.num_points, seed=point_seed)
-        out = self._simulate(mesh, touch_seed, camera=camera)
+        out = self._simulate(mesh, touch_seed, camera=camera, index=index)
         out.update(
             {
                 "image": view["image"].float().numpy(),
@@ -304,7 +304,7 @@ class TactileClassificationDataset(GeneratedDataset):
 
     def generate(self, index: int) -> dict[str, np.ndarray]:
         index = self._check_index(index)
-        out = self._simulate(self.mesh(index), self.seeds(index)[0])
+        out = self._simulate(self.mesh(index), self.seeds(index)[0], index=index)
         out["label"] = np.asarray(self.label_of(index), dtype=np.int64)
         return out
 

@@ -225,11 +225,13 @@ class GeneratedDataset(Dataset):
             "press": self.press,
         }
 
-    def _simulate(self, mesh: trimesh.Trimesh, seed: int, camera: Any = None) -> dict[str, np.ndarray]:
+    def _simulate(
+        self, mesh: trimesh.Trimesh, seed: int, camera: Any = None, index: int | None = None
+    ) -> dict[str, np.ndarray]:
         """Sample ``touches_per_item`` touches and simulate them in one batch.
 
         A touch the simulator cannot place (the pad would start inside a concave part, ~2% of random touches) is
-        replaced by another seeded touch, see :meth:`_placeable_touches`.
+        replaced by another seeded touch, see :meth:`_placeable_touches` (``index``: the item, named in its warning).
 
         Returns arrays: tactile (M,3,Hs,Ws) float32 grid cells, positions (M,3), directions (M,3) float32,
         contact (M,) bool, depth (M,) float32.
@@ -239,7 +241,7 @@ class GeneratedDataset(Dataset):
         try:
             readings = self._simulate_stable(mesh, touches)
         except ValueError:
-            touches = self._placeable_touches(mesh, touches, seed, camera)
+            touches = self._placeable_touches(mesh, touches, seed, camera, index=index)
             readings = self._simulate_stable(mesh, touches)
         return {
             "tactile": torch.stack([r.image for r in readings]).float().cpu().numpy(),
@@ -283,12 +285,20 @@ class GeneratedDataset(Dataset):
         return out
 
     def _placeable_touches(
-        self, mesh: trimesh.Trimesh, touches: Touches, seed: int, camera: Any = None, attempts: int = 20
+        self,
+        mesh: trimesh.Trimesh,
+        touches: Touches,
+        seed: int,
+        camera: Any = None,
+        attempts: int = 20,
+        index: int | None = None,
     ) -> Touches:
         """Replace the touches the simulator rejects with seeded re-draws (deterministic in ``seed``).
 
         Each touch is probed with a one-step press; a rejected touch ``t`` is re-drawn with seed
-        ``SeedSequence([seed, t, attempt])`` until one is accepted. Raises ValueError when no attempt works.
+        ``SeedSequence([seed, t, attempt])`` until one is accepted, and one warning names the item (``index``), how
+        many touches were re-drawn and why the first was rejected: a re-drawn touch is a single draw of the policy,
+        outside the structure of the object's others (the paper's sweep). Raises ValueError when no attempt works.
         """
         out = {k: list(v) if isinstance(v, list) else v.clone() for k, v in touches._asdict().items()}
 
@@ -299,8 +309,11 @@ class GeneratedDataset(Dataset):
                 return str(err)
             return None
 
+        redrawn: dict[int, str] = {}  # touch -> why its first draw was rejected
         for t in range(len(out["positions"])):
             why = rejected(out["positions"][t], out["directions"][t])
+            if why is not None:
+                redrawn[t] = why
             attempt = 0
             while why is not None:
                 attempt += 1
@@ -312,6 +325,20 @@ class GeneratedDataset(Dataset):
                 if why is None:
                     for k, v in new._asdict().items():
                         out[k][t] = v[0]
+        if redrawn:  # a policy with structure (the paper's sweep) loses it for these touches: say so
+            first = next(iter(redrawn.values()))
+            cls, instance = self.object_of(index) if index is not None else ("", 0)
+            what = "an object" if index is None else f"item {index} ({cls} {instance})"
+            log.warning(
+                "%s split, %s: %d of %d touches could not be placed and were re-drawn one by one by %s, outside "
+                "the structure of the object's other touches; the first was rejected with: %s",
+                self.split,
+                what,
+                len(redrawn),
+                len(out["positions"]),
+                type(self.touch).__name__,
+                first,
+            )
         return Touches(**out)
 
     def generate(self, index: int) -> dict[str, np.ndarray]:
