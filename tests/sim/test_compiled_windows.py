@@ -104,6 +104,7 @@ def test_a_compiled_polar_that_did_not_converge_runs_the_step_again_iterating(gp
         return polar(F)
 
     monkeypatch.setattr(step_mod, "polar_decomposition", counted)
+    monkeypatch.setattr(step_mod, "polar_grid_available", lambda *t: False)  # the kernel below, also on one thread
     kernels_call = step_mod.CompiledKernels.__call__
 
     def flaky(self, name, *args):  # noqa: ANN001, ANN002, ANN202

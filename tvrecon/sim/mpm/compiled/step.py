@@ -31,9 +31,11 @@ from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels
 from tvrecon.sim.mpm.compiled.gather import fused_g2p, g2p_grid_available
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
+from tvrecon.sim.mpm.compiled.grid_loop import fused_grid_collide, grid_loop_available
 from tvrecon.sim.mpm.compiled.kernels import NEWTON_ITERS
 from tvrecon.sim.mpm.compiled.polar import fused_polar, polar_grid_available
 from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
+from tvrecon.sim.mpm.compiled.stencil import fused_block_index, fused_stencil_base, stencil_loops_available
 from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, share_node_force
 from tvrecon.sim.mpm.materials import polar_decomposition
 from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
@@ -89,9 +91,12 @@ def _grid_update(
     sdf, nrm = fields(colliders, st.lo, D, dx, G.dtype, G.device)
     damp = math.exp(-cfg.damping * dt) if cfg.damping > 0 else 1.0
     S0, S1 = D[1] * D[2], D[2]
-    gv, gm, node_force, force, vmax = kernels(
-        "grid", G, S0, S1, sdf, nrm, len(colliders), dt, float(cfg.friction), damp
-    )
+    if grid_loop_available(G, sdf, nrm):  # CPU, one thread, the fused P2G's (N, 4) sums: one C++ loop (grid_loop)
+        gv, gm, node_force, force, vmax = fused_grid_collide(G, sdf, nrm, len(colliders), dt, float(cfg.friction), damp)
+    else:
+        gv, gm, node_force, force, vmax = kernels(
+            "grid", G, S0, S1, sdf, nrm, len(colliders), dt, float(cfg.friction), damp
+        )
     return gv, force, Transfer(st.lin, None, gm, node_force, (S0, S1), st.fx.T), vmax
 
 
@@ -138,15 +143,19 @@ def fused_step(
     # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
     xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
     if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index compiled
-        base_t, fx, lo_f, hi_f = k("stencil", xt, inv_dx, B)
+        loops = stencil_loops_available(xt)  # CPU, one thread: two plain C++ loops, no dynamo call (compiled.stencil)
+        base_t, fx, lo_f, hi_f = fused_stencil_base(xt, inv_dx, B) if loops else k("stencil", xt, inv_dx, B)
         D = block_dims(lo_f.T, hi_f.T, B) if dims is None else list(dims)
         lo_t = lo_f.to(torch.int64)  # (3, B)
-        strides = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
         if padded:  # dims taken on trust: a base node outside the block is moved to its edge (the caller reruns)
             top = torch.tensor(D, dtype=base_t.dtype, device=device)[:, None, None] - 3.0  # (3, 1, 1)
             low = lo_f[:, :, None]  # (3, B, 1)
             base_t = torch.minimum(torch.maximum(base_t.view(3, B, -1), low), low + top).view(3, -1)
-        lin = k("index", base_t, lo_t, strides)
+        if loops:
+            lin = fused_block_index(base_t, lo_t, D)
+        else:
+            strides = torch.tensor([D[1], D[2], D[0] * D[1] * D[2]], dtype=torch.int64, device=device)
+            lin = k("index", base_t, lo_t, strides)
         lo = lo_t.T
     else:
         base_t, fx, _, _ = k("stencil", xt, inv_dx, 1)
