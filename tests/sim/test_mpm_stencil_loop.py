@@ -55,18 +55,24 @@ def test_a_non_finite_position_stays_visible(built):
 @pytest.mark.slow
 @needs_compiler
 def test_a_compiled_press_on_one_thread_calls_no_stencil_or_index_kernel(built, monkeypatch):
-    names = []
+    names, loops = [], []
     call = step.CompiledKernels.__call__
 
     def counted(self, name, *args):  # noqa: ANN001, ANN002, ANN202
         names.append(name)
         return call(self, name, *args)
 
+    def stencil_loop(*args):  # noqa: ANN002, ANN202
+        loops.append(args[0].shape[1])
+        return stencil.fused_stencil_base(*args)
+
     monkeypatch.setattr(step.CompiledKernels, "__call__", counted)
+    monkeypatch.setattr(step, "fused_stencil_base", stencil_loop)
     cfg = MPMConfig(n_grid=32)
     s_ref, f_ref = _press(MLSMPM(cfg), 20, batched=True)
     s_new, f_new = _press(MLSMPM(cfg, compile=True), 20, batched=True)
-    assert names and "stencil" not in names and "index" not in names
+    assert len(loops) == 20, "every compiled step must take the stencil loop here"
+    assert "stencil" not in names and "index" not in names  # with the grid loop too: no kernel call at all
     for name in ("x", "v", "F"):
         torch.testing.assert_close(getattr(s_new, name), getattr(s_ref, name), rtol=1e-5, atol=1e-6, msg=name)
     torch.testing.assert_close(f_new, f_ref, rtol=1e-5, atol=1e-8)
