@@ -20,7 +20,7 @@ import ctypes
 import torch
 from torch import Tensor
 
-from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop
+from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop, ptr
 
 __all__ = ["SOURCE", "contact_grid_available", "fused_contact"]
 
@@ -128,9 +128,6 @@ def fused_contact(
     if a is not None:
         a, hv = a.contiguous(), hv.expand(K, 3).contiguous()
     f, total = torch.empty(K, 3, dtype=torch.float32), torch.empty(K, 3, dtype=torch.float32)
-
-    def ptr(t: Tensor | None) -> ctypes.c_void_p:
-        return ctypes.c_void_p(None if t is None else t.data_ptr())
 
     bad = _LOOP.library().contact_grid(
         ptr(out), ptr(flat), ptr(w), ptr(share), ptr(m), ptr(a), ptr(hv), ptr(phi), ptr(n), ctypes.c_int64(K),

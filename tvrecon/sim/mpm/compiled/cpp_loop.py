@@ -7,7 +7,15 @@ from __future__ import annotations
 import ctypes
 import logging
 
+from torch import Tensor
+
 log = logging.getLogger(__name__)
+
+
+def ptr(t: Tensor | None) -> ctypes.c_void_p:
+    """A tensor's data pointer for a loop's ``const float*`` / ``int64_t*`` argument (null for None); the caller
+    passes contiguous tensors of the dtype the loop reads."""
+    return ctypes.c_void_p(None if t is None else t.data_ptr())
 
 
 class CppLoop:

@@ -19,7 +19,7 @@ import ctypes
 import torch
 from torch import Tensor
 
-from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop
+from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop, ptr
 
 __all__ = ["SOURCE", "fused_g2p", "g2p_grid_available"]
 
@@ -137,9 +137,6 @@ def fused_g2p(
         if hvt.shape not in ((3, 1), (3, P)):
             raise ValueError(f"fused_g2p: hand velocity must be (3, 1) or (3, {P}), got {tuple(hvt.shape)}")
     out = [torch.empty(k, P, dtype=torch.float32) for k in (3, 3, 9, 9)]
-
-    def ptr(t: Tensor | None) -> ctypes.c_void_p:
-        return ctypes.c_void_p(None if t is None else t.data_ptr())
 
     outside = _library().g2p_grid(
         ptr(gv), ptr(lin), ptr(fx), ptr(xt), ptr(Ft), ptr(alpha), ptr(hvt),

@@ -20,7 +20,7 @@ import ctypes
 import torch
 from torch import Tensor
 
-from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop
+from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop, ptr
 
 __all__ = ["SOURCE", "fused_grid_collide", "grid_loop_available"]
 
@@ -109,9 +109,6 @@ def fused_grid_collide(
     gv, gm = torch.empty(N, 3, dtype=torch.float32), torch.empty(N, dtype=torch.float32)
     nf = torch.empty(N, 3, dtype=torch.float32) if collide else torch.zeros(N, 3, dtype=torch.float32)
     force, vmax = torch.zeros(B, 3, dtype=torch.float32), torch.empty((), dtype=torch.float32)
-
-    def ptr(t: Tensor | None) -> ctypes.c_void_p:
-        return ctypes.c_void_p(None if t is None else t.data_ptr())
 
     _LOOP.library().grid_collide(
         ptr(G), ptr(sdf if collide else None), ptr(nrm if collide else None), ctypes.c_int64(N), ctypes.c_int64(B),

@@ -19,7 +19,7 @@ import ctypes
 import torch
 from torch import Tensor
 
-from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop
+from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop, ptr
 
 __all__ = ["SOURCE", "fused_block_index", "fused_stencil_base", "stencil_loops_available"]
 
@@ -89,10 +89,6 @@ def stencil_loops_available(*tensors: Tensor) -> bool:
     return torch.get_num_threads() == 1 and bool(_library())
 
 
-def _ptr(t: Tensor) -> ctypes.c_void_p:
-    return ctypes.c_void_p(t.data_ptr())
-
-
 def fused_stencil_base(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """:func:`tvrecon.sim.mpm.compiled.kernels.stencil_base`: xt (3, P) float32 positions of B scenes of P / B
     contiguous particles -> base_f, fx (3, P) and the per-scene bounds lo_f, hi_f (3, B) of base_f (call only where
@@ -104,7 +100,7 @@ def fused_stencil_base(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, T
     base, fx = torch.empty(3, P, dtype=torch.float32), torch.empty(3, P, dtype=torch.float32)
     lo, hi = torch.empty(3, B, dtype=torch.float32), torch.empty(3, B, dtype=torch.float32)
     _library().stencil_base(
-        _ptr(xt), ctypes.c_int64(P), ctypes.c_int64(B), ctypes.c_float(inv_dx), *map(_ptr, (base, fx, lo, hi))
+        ptr(xt), ctypes.c_int64(P), ctypes.c_int64(B), ctypes.c_float(inv_dx), *map(ptr, (base, fx, lo, hi))
     )
     return base, fx, lo, hi
 
@@ -120,7 +116,7 @@ def fused_block_index(base_f: Tensor, lo: Tensor, D: list[int]) -> Tensor:
     d0, d1, d2 = int(D[1]), int(D[2]), int(D[0]) * int(D[1]) * int(D[2])
     lin = torch.empty(P, dtype=torch.int64)
     _library().block_index(
-        _ptr(base_f), _ptr(lo), ctypes.c_int64(P), ctypes.c_int64(B), ctypes.c_int64(d0), ctypes.c_int64(d1),
-        ctypes.c_int64(d2), _ptr(lin),
+        ptr(base_f), ptr(lo), ctypes.c_int64(P), ctypes.c_int64(B), ctypes.c_int64(d0), ctypes.c_int64(d1),
+        ctypes.c_int64(d2), ptr(lin),
     )  # fmt: skip
     return lin
