@@ -19,12 +19,13 @@ def ptr(t: Tensor | None) -> ctypes.c_void_p:
 
 
 class CppLoop:
-    """One C++ source and its ``int64_t``-returning function ``name``, built on first use; a failed build (no
-    compiler, another torch) is logged once and leaves :meth:`library` None, so the caller keeps its other path
-    (``fallback`` names it in the log line)."""
+    """One C++ source and its ``int64_t``-returning function ``name`` (and ``also``: more such functions of the same
+    source), built on first use; a failed build (no compiler, another torch) is logged once and leaves
+    :meth:`library` None, so the caller keeps its other path (``fallback`` names it in the log line)."""
 
-    def __init__(self, source: str, name: str, what: str, fallback: str) -> None:
+    def __init__(self, source: str, name: str, what: str, fallback: str, also: tuple[str, ...] = ()) -> None:
         self.source, self.name, self.what, self.fallback = source, name, what, fallback
+        self.names = (name, *also)
         self._lib: object | None = None  # the loaded library, False after a failed build
 
     def library(self):
@@ -33,7 +34,8 @@ class CppLoop:
                 from torch._inductor.codecache import CppCodeCache
 
                 lib = CppCodeCache.load(self.source)
-                getattr(lib, self.name).restype = ctypes.c_int64
+                for name in self.names:
+                    getattr(lib, name).restype = ctypes.c_int64
                 self._lib = lib
             except Exception as e:  # noqa: BLE001 - no compiler, another torch: the caller's other path stays
                 why = f"{type(e).__name__}: {e}"

@@ -71,14 +71,11 @@ extern "C" int64_t block_index(const float* base, const int64_t* lo, int64_t P, 
 }
 """
 
-_LOOP = CppLoop(SOURCE, "stencil_base", "stencil and block-index loops", "the compiled kernels")
+_LOOP = CppLoop(SOURCE, "stencil_base", "stencil and block-index loops", "the compiled kernels", also=("block_index",))
 
 
 def _library():
-    lib = _LOOP.library()
-    if lib is not None and getattr(lib.block_index, "restype", None) is not ctypes.c_int64:
-        lib.block_index.restype = ctypes.c_int64
-    return lib
+    return _LOOP.library()
 
 
 def stencil_loops_available(*tensors: Tensor) -> bool:

@@ -142,7 +142,7 @@ def fused_step(
     dx, inv_dx = 1.0 / cfg.n_grid, float(cfg.n_grid)
     # channel-first copies (no copy when the state came from a compiled step: see _cf_state)
     xt, Ft = x.T.contiguous(), state.F.reshape(P, 9).T.contiguous()
-    if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index compiled
+    if state.batch is None or block is not None:  # contiguous scenes (every press): bounds and index per scene
         loops = stencil_loops_available(xt)  # CPU, one thread: two plain C++ loops, no dynamo call (compiled.stencil)
         base_t, fx, lo_f, hi_f = fused_stencil_base(xt, inv_dx, B) if loops else k("stencil", xt, inv_dx, B)
         D = block_dims(lo_f.T, hi_f.T, B) if dims is None else list(dims)
