@@ -3,10 +3,11 @@
 call (``CompiledKernels``) and the fused C++ loops (``compiled.scatter.fused_p2g``, ``compiled.gather.fused_g2p``,
 ``compiled.contact.fused_contact``, ``compiled.polar.fused_polar``) timed by wall clock around the call.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_step_kernels.py [--batch 10] [--device cpu]
+    OMP_NUM_THREADS=1 python benchmarks/bench_step_kernels.py [--batch 10] [--device cpu] [--keep-heap]
 
 Prints the call's wall and CPU time, its steps, and per kernel the ms per call, the calls and the share of the
-call; ``fused_step`` is the whole compiled step (the kernels plus its eager glue), the rest of the call the press
+call (``--keep-heap``: :func:`tvrecon.utils.heap.keep_freed_memory` first, as ``generate`` does); ``fused_step`` is
+the whole compiled step (the kernels plus its eager glue), the rest of the call the press
 loop, set-up and readings. On CUDA each call is synchronized before and after (the times then include the launch
 and the wait). Only shares and ratios from one run mean something on a loaded machine.
 """
@@ -34,6 +35,7 @@ import tvrecon.sim.mpm.free_flight as free_flight  # noqa: E402
 import tvrecon.sim.mpm.particle_contact as particle_contact  # noqa: E402
 import tvrecon.sim.mpm.solver as solver  # noqa: E402
 from tvrecon.sim import EIPSimulator  # noqa: E402
+from tvrecon.utils.heap import keep_freed_memory  # noqa: E402
 
 
 def main() -> None:
@@ -41,7 +43,10 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=10, help="touches in the press_batch call")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--keep-heap", action="store_true", help="keep freed memory in the process, as generate does")
     args = parser.parse_args()
+    if args.keep_heap and not keep_freed_memory():
+        print("keep_freed_memory: not glibc here, the heap is as by default")
     torch.set_num_threads(args.threads)
     warnings.simplefilter("ignore")  # thin-part contact warnings of the paper scene: not what is measured here
     device = torch.device(args.device)
@@ -84,7 +89,7 @@ def main() -> None:
     sync()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     steps = max(int(r.steps) for r in readings)
-    print(f"torch {torch.__version__}, {device}, {torch.get_num_threads()} thread(s)")
+    print(f"torch {torch.__version__}, {device}, {torch.get_num_threads()} thread(s), keep heap {args.keep_heap}")
     print(f"batch {args.batch}: {wall:.2f} s wall, {cpu:.2f} CPU-s, {steps} steps, {1000 * wall / steps:.1f} ms a step")
     print(f"  {'kernel':14s} {'ms/call':>8s} {'calls':>6s} {'share':>6s}")
     for name, s in sorted(seconds.items(), key=lambda kv: -kv[1]):

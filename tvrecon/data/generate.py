@@ -73,6 +73,7 @@ from tvrecon.data.generated_dataset import GeneratedDataset
 from tvrecon.data.touch_report import contact_report
 from tvrecon.sim.mpm.compiled.policy import AUTO
 from tvrecon.utils.cli_errors import RESUME_HINT
+from tvrecon.utils.heap import keep_freed_memory
 
 __all__ = [
     "GenerateStats",
@@ -149,6 +150,7 @@ def _init_worker(datasets: tuple[GeneratedDataset, ...]) -> None:
     if hasattr(signal, "pthread_sigmask"):  # started with SIGINT blocked (see _pool_generate): now ignored, unblock
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     torch.set_num_threads(1)
+    keep_freed_memory()  # a press step's temporaries stay in the process for the next step (tvrecon.utils.heap)
     _DATASETS = datasets
 
 
@@ -326,6 +328,8 @@ def pregenerate_splits(
 
     try:
         if procs == 1:
+            if todo:
+                keep_freed_memory()  # as each worker does (_init_worker)
             for k, i in todo:
                 sets[k].raw(i)
                 done(k)
