@@ -2,6 +2,7 @@
 compile cache, at two job sizes; the break-even it implies and what auto chooses for the whole preset (not a test).
 
     python benchmarks/bench_compile_auto.py [--preset small] [--items 3 8] [--out results.json] [--compiled-only]
+        [--set KEY=VALUE ...]
 
 Five ``generate`` processes, one worker each (one torch thread), every one on an empty data cache so that every item
 is simulated: eager with ``--items`` A and B objects; compiled with A objects on an empty compile cache (cold), then
@@ -13,8 +14,9 @@ graphs dynamo compiled (the same count at A and B objects: no recompiles after t
   touches' saving; and the break-even touches (fixed cost / saving per touch) that ``AUTO_MIN_TOUCHES_*`` round
   (``tvrecon/sim/mpm/compiled/policy.py``).
 
-``--compiled-only`` runs the three compiled processes alone and prints the compiled marginal CPU-s per touch (the
-eager runs of the authors' pad cost ~10 CPU-s a touch).
+``--set`` adds data-config overrides to every run (e.g. the old paper pad: ``--set sensor=paper --set press=paper
+--set touch=cone --set '~touch.order'``). ``--compiled-only`` runs the three compiled processes alone and prints
+the compiled marginal CPU-s per touch (the eager runs of the authors' pad cost ~10 CPU-s a touch).
 
 Ratios from one invocation are comparable; absolute seconds depend on the machine's load.
 """
@@ -44,12 +46,15 @@ print("BENCH " + json.dumps({"touches": sum(s.touches for s in stats), "seconds"
 """
 
 
-def run(preset: str, items: int, compile_: str, inductor_dir: str, env: dict[str, str]) -> dict:
-    """One generate process on a fresh data cache: its CPU-s, wall-s, touches and compiled graphs."""
+def run(
+    preset: str, items: int, compile_: str, inductor_dir: str, env: dict[str, str], extra: tuple[str, ...] = ()
+) -> dict:
+    """One generate process on a fresh data cache (``extra``: more overrides): its CPU-s, wall-s, touches and compiled
+    graphs."""
     with tempfile.TemporaryDirectory(prefix="bench_auto_data_") as data:
         argv = [
             f"preset={preset}", "splits=train", "workers=1", f"train.num_samples={items}",
-            f"cache_dir={data}", f"compile={compile_}",
+            f"cache_dir={data}", f"compile={compile_}", *extra,
         ]  # fmt: skip
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
@@ -81,6 +86,7 @@ def main() -> None:
     parser.add_argument("--items", type=int, nargs=2, default=(3, 8), metavar=("A", "B"), help="objects per run")
     parser.add_argument("--out", type=Path, default=None, help="write the runs and figures as JSON")
     parser.add_argument("--compiled-only", action="store_true", help="skip the eager runs")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a data-config override")
     args = parser.parse_args()
     a, b = args.items
     env = {**os.environ, "PROJECT_ROOT": str(ROOT), "OMP_NUM_THREADS": "1", "TORCHINDUCTOR_COMPILE_THREADS": "1"}
@@ -95,7 +101,7 @@ def main() -> None:
         ):
             if args.compiled_only and mode == "false":
                 continue
-            runs[name] = r = run(args.preset, items, mode, ind, env)
+            runs[name] = r = run(args.preset, items, mode, ind, env, tuple(args.set))
             print(
                 f"{name:8s} {r['items']:3d} objects {r['touches']:4d} touches: {r['cpu_s']:7.1f} CPU-s "
                 f"{r['wall_s']:7.1f} s wall, {r['graphs']} graphs",

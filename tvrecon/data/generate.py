@@ -380,7 +380,7 @@ def _parse(argv: Sequence[str]) -> tuple[dict[str, str], list[str]]:
             opts[k] = v
         elif a.split("=", 1)[0].lstrip("+~").startswith(("hydra.", "hydra/")):  # else ignored by compose: say so
             raise ValueError(f"{a!r} is a Hydra setting: it takes effect with --multirun only (see --help)")
-        elif "=" in a:
+        elif "=" in a or (a.startswith("~") and len(a) > 1):  # ~key: Hydra's deletion of a key
             overrides.append(a)
         else:
             raise ValueError(f"unexpected argument {a!r}; use key=value (see --help)")
