@@ -67,8 +67,15 @@ class _ShapeProbe(L.LightningModule):
 def test_the_trainer_runs_the_hook(tmp_path: Path) -> None:
     dm = datamodule(tmp_path, tactile_size=8, device_tactile_size=SIZE, val=None)
     probe = _ShapeProbe()
-    trainer = L.Trainer(max_steps=1, accelerator="cpu", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, default_root_dir=tmp_path)
+    trainer = L.Trainer(
+        max_steps=1,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+    )
     trainer.fit(probe, datamodule=dm)
     assert probe.shapes == [(2, 2, 3, SIZE, SIZE)]
 

@@ -121,9 +121,7 @@ def rest_sq_sums(x: Tensor, rest: tuple[Tensor, float]) -> Tensor:
     return (e * e).sum((1, 2))
 
 
-def chamfer_surely_below(
-    x: Tensor, rest: tuple[Tensor, float], threshold: float, sq_sum: float | None = None
-) -> bool:
+def chamfer_surely_below(x: Tensor, rest: tuple[Tensor, float], threshold: float, sq_sum: float | None = None) -> bool:
     """True only when ``terminal_chamfer(x, x0, lattice) < threshold`` (False: undecided), with a few ops.
 
     With ``a`` and ``b`` the centred layers :func:`terminal_chamfer` builds and ``r`` the root mean square of ``|a_p -
