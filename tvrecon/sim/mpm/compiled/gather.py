@@ -41,6 +41,12 @@ typedef float v4 __attribute__((vector_size(16)));
 typedef float v8 __attribute__((vector_size(32)));
 typedef int32_t i4 __attribute__((vector_size(16)));
 constexpr int64_t TILE = 256;
+// lanes 1, 2, 3, 3 of a 4-float vector (GCC's and Clang's own spellings of the shuffle)
+#if defined(__clang__)
+static inline v4 down1(v4 a) { return __builtin_shufflevector(a, a, 1, 2, 3, 3); }
+#else
+static inline v4 down1(v4 a) { return __builtin_shuffle(a, (i4){1, 2, 3, 3}); }
+#endif
 template <typename V> static inline V ld(const float* p) { V r; std::memcpy(&r, p, sizeof(V)); return r; }
 template <typename V> static inline void st(float* p, V v) { std::memcpy(p, &v, sizeof(V)); }
 
@@ -114,7 +120,7 @@ extern "C" int64_t g2p_grid(const float* gv, const int64_t* lin, const float* fx
           const float* g = gv + 3 * (b0 + i * S0_ + j * S1);
           // nodes k = 0, 1, 2 as 16-byte loads at floats 0, 3 and 5 (lane 3 unused; the last load ends at the run's
           // last float, which may end the grid, and is shifted down one lane)
-          const v4 n0 = ld<v4>(g), n1 = ld<v4>(g + 3), n2 = __builtin_shuffle(ld<v4>(g + 5), (i4){1, 2, 3, 3});
+          const v4 n0 = ld<v4>(g), n1 = ld<v4>(g + 3), n2 = down1(ld<v4>(g + 5));
           const v4 r0 = wa[2][0] * n0 + wa[2][1] * n1 + wa[2][2] * n2;
           const v4 rk = wa[2][1] * n1 + (2.0f * wa[2][2]) * n2;
           const float wij = wa[0][i] * wa[1][j];
