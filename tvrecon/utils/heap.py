@@ -7,8 +7,9 @@ page-faults the same memory back in, zeroed: on this project's 2-core VM that wa
 (25 ms a step against 15 ms on reused memory; ``benchmarks/README.md``, "The heap kept between steps").
 :func:`keep_freed_memory` fixes the thresholds instead: blocks up to 32 MiB come from the heap, and up to 1 GiB of
 freed heap stays in the process for the next step. The process's resident memory then stays at its peak (up to
-that GiB) instead of falling between steps, which is why it is a job's choice (``python -m tvrecon.data.generate``
-and its workers call it) and not something the simulator does on import.
+that GiB) instead of falling between steps, which is why it is a job's choice and not something the simulator does
+on import: :func:`tvrecon.data.generate.pregenerate_splits` calls it in every process that generates (``python -m
+tvrecon.data.generate``, its workers, and a datamodule that makes its missing data before training).
 """
 
 from __future__ import annotations
