@@ -98,10 +98,11 @@ def p2g_call(source: str, args: list) -> Callable[[], list[torch.Tensor]]:
 
     def run() -> list[torch.Tensor]:
         grid.zero_()
-        if fn(*call) + 0 * q.numel():  # (q is used here so that it lives as long as the call's pointer to it)
+        if fn(*call):
             raise RuntimeError("a stencil left the block")
         return [grid]
 
+    run.buffers = (q, grid)  # the call holds raw pointers to them: they live as long as the call
     return run
 
 
