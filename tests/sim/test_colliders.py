@@ -172,3 +172,24 @@ def test_open_plane_from_above_is_solid_below_and_a_shell_otherwise():
     assert shell.offset == pytest.approx(1 / 32)
     sdf = shell.sdf(pts)
     assert sdf[0] < 0 and sdf[2] < 0 and sdf[1] > 0
+
+
+def test_mesh_collider_signs_its_nodes_in_the_source_frame_as_in_its_own():
+    """``sign_frame``: the inside test of a watertight mesh cast on the same object in another frame (turned, moved
+    and scaled, as the press keeps the object's own mesh) gives the table of the domain-frame test, and a source mesh
+    that is not the same object gives another table (the frame is used, not ignored)."""
+    world = trimesh.creation.box(extents=(0.8, 0.5, 0.3))  # the object in its own frame (world units)
+    R = trimesh.transformations.rotation_matrix(0.7, [0.3, 1.0, 0.2])[:3, :3]
+    origin, scale = np.array([0.2, -0.4, 1.0]), 2.5
+    # the domain-frame mesh: world = origin + scale R dom, so dom = R^T (world - origin) / scale
+    dom = trimesh.Trimesh((np.asarray(world.vertices) - origin) @ R / scale, world.faces, process=False)
+    lo, hi = dom.bounds[0] - 2 * DX, dom.bounds[1] + 2 * DX
+    kw = {"n_grid": 128, "region": (lo, hi), "watertight": True}
+    ref = MeshCollider(dom, **kw)
+    new = MeshCollider(dom, **kw, sign_frame=(world, R, origin, scale))
+    assert int((ref.node_sdf < 0).sum()) > 100 and int((ref.node_sdf > 0).sum()) > 100
+    assert torch.equal(new.node_sdf, ref.node_sdf) and torch.equal(new.node_normal, ref.node_normal)
+    moved = MeshCollider(dom, **kw, sign_frame=(world, R, origin + 0.1, scale))
+    assert not torch.equal(moved.node_sdf < 0, ref.node_sdf < 0)
+    with pytest.raises(ValueError, match="rotation"):
+        MeshCollider(dom, **kw, sign_frame=(world, R[:2], origin, scale))

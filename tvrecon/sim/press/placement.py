@@ -126,18 +126,19 @@ def place_touch(
             f"than half the domain (n_grid / 2 = {int(p.n_grid) / 2:g} cells). Press less deep (depth / max_depth) "
             f"or raise n_grid"
         )
-    # mesh in the sensor frame centred on `position`, in domain units (not yet shifted by 0.5)
-    Rn = R.double().numpy()
-    local = (np.asarray(mesh.vertices, dtype=np.float64) - pos.double().numpy()) @ Rn / S
-    mloc = trimesh.Trimesh(vertices=local, faces=np.asarray(mesh.faces), process=False)
+    # mesh in the sensor frame centred on `position`, in domain units (not yet shifted by 0.5): world = pos + S Rn local
+    Rn, pos_w = R.double().numpy(), pos.double().numpy()
+    local = (np.asarray(mesh.vertices, dtype=np.float64) - pos_w) @ Rn / S
     # rays from the contact-layer lattice along -z: the first point of the object the pad will touch
     lat = pad_lattice(s)[: s.resolution[0] * s.resolution[1]].double().numpy() * dx
     # rays start a little behind the pad's start (a position slightly inside the object still works)
     back = min(reach, clearance_cells(s, p) * dx)
     origins = np.stack([lat[:, 0], lat[:, 1], np.full(len(lat), back)], axis=1)
-    dirs = np.tile(np.array([0.0, 0.0, -1.0]), (len(lat), 1))
-    locs, _, _ = mloc.ray.intersects_location(origins, dirs, multiple_hits=False)
-    heights = locs[:, 2] if len(locs) else np.zeros(0)
+    # cast in the object's own frame, on its ray intersector: trimesh builds that Embree scene once per mesh object,
+    # so an object's touches share it (a mesh in the touch's frame would build one per touch)
+    dirs = np.tile(-Rn[:, 2], (len(lat), 1))
+    locs, _, _ = mesh.ray.intersects_location(pos_w + S * origins @ Rn.T, dirs, multiple_hits=False)
+    heights = (locs - pos_w) @ Rn[:, 2] / S if len(locs) else np.zeros(0)  # back in the touch's frame
     heights = heights[heights >= -reach]
     if len(heights) == 0:
         closest, dist, _ = trimesh.proximity.closest_point(mesh, pos.double().numpy()[None])
@@ -168,6 +169,8 @@ def place_touch(
         device=device,
         from_above=True,
         watertight=mesh.is_watertight,
+        # the inside test in the object's frame too (dom + (-0.5, -0.5, h - zt) = local), on the shared intersector
+        sign_frame=(mesh, Rn, pos_w + S * Rn @ np.array([-0.5, -0.5, h - zt]), S),
     )
     x_rest = pad_lattice(s, device=device) * dx + torch.tensor([0.5, 0.5, zt + float(p.gap) * dx], device=device)
     inside = collider.count_inside(x_rest)  # no interpolation when no reachable node is inside
