@@ -8,6 +8,7 @@ import pytest
 import torch
 import trimesh
 from test_mpm import make_pad
+from test_mpm_compile import needs_compiler
 
 from tvrecon.sim.bodies.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
@@ -122,3 +123,67 @@ def test_a_press_reads_the_same_with_free_flight(monkeypatch):
         assert r.contact and r.image.abs().max() > 0.1 and r.steps == n.steps
         assert (n.image - r.image).abs().max() <= 1e-4
         torch.testing.assert_close(n.force, r.force, rtol=1e-4, atol=1e-7)
+
+
+def test_free_of_mesh_is_the_floor_test_on_the_stacked_lookup():
+    """``free_of_mesh`` (the kernel ``"free_contact"``) answers the floor test of the stacked lookup: a pad moving
+    away from the bodies is free, the same pad moving into them is not, and a NaN velocity is not free."""
+    from test_mesh_stack import _colliders, _points
+
+    from tvrecon.sim.bodies.mesh_stack import MeshStack
+    from tvrecon.sim.mpm.free_flight import MARGIN, free_of_mesh
+    from tvrecon.sim.mpm.particle_contact import PUSH_CAP_CELLS, PUSH_OUT, normal_floor
+
+    cols = _colliders()
+    stack = MeshStack(cols, "cpu")
+    B, M = len(cols), 700
+    x = _points(B * M, seed=5)
+    scene = torch.arange(B).repeat_interleave(M)
+    dx, dt = stack.dx, 1e-3
+    cand = torch.nonzero(stack.near(x, scene, dx)).flatten()
+    cand = cand[stack.sdf_normal(x[cand], scene[cand])[0] > 0]  # outside the bodies: nothing pushes them at rest
+    phi, n = stack.sdf_normal(x[cand], scene[cand])
+    phi = torch.where(phi < dx, phi, torch.full_like(phi, float("inf")))
+    assert torch.isfinite(phi).any(), "some candidates within a cell of a body"
+    tables = stack.lookup_tables(x.dtype)
+    for sign in (1.0, -1.0):  # along the outward normals, 2 cells a step: away from the bodies, then into them
+        v = torch.zeros_like(x)
+        v[cand] = sign * (2 * dx / dt) * n
+        want = normal_floor(phi, dt, PUSH_OUT, PUSH_CAP_CELLS * dx / dt) - (v[cand] * n).sum(1)
+        want = bool((want + MARGIN * v[cand].abs().amax()).amax() < 0)
+        got = free_of_mesh(x, v, cand, scene[cand], *tables, stack.dx, dx, dt)
+        assert got.dim() == 0 and bool(got) is want
+        assert want is (sign > 0), "moving away is free, moving in is not"
+    v[cand[0]] = float("nan")
+    assert not bool(free_of_mesh(x, v, cand, scene[cand], *tables, stack.dx, dx, dt))
+
+
+@pytest.mark.slow
+@needs_compiler
+def test_a_compiled_press_tests_its_free_steps_in_one_kernel(monkeypatch):
+    """A compiled press of a mesh: its free steps run the ``"free_contact"`` kernel, and it reads what the eager press
+    with free flight reads (the same steps, images within 1e-4 grid cells, forces within 1e-5)."""
+    from tvrecon.sim.mpm.compiled import backend
+    from tvrecon.sim.press import EIPSimulator, PressConfig, loop
+    from tvrecon.sim.sensor.pad import SensorConfig
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    sensor = SensorConfig(resolution=(12, 12), layers=4)
+    press = PressConfig(n_grid=48, contact="particle", gap=2.0)
+    pos, dirs = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]], [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+    monkeypatch.setattr(loop, "FREE_FLIGHT", True)
+    ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
+    used: dict[str, int] = {}
+    call = backend.CompiledKernels.__call__
+
+    def counted(self, name, *args):  # noqa: ANN001, ANN002, ANN202
+        used[name] = used.get(name, 0) + 1
+        return call(self, name, *args)
+
+    monkeypatch.setattr(backend.CompiledKernels, "__call__", counted)
+    new = EIPSimulator(sensor, press, compile=True).press_batch(mesh, pos, dirs)
+    assert used.get("free_contact", 0) >= 5, used
+    for r, n in zip(ref, new):
+        assert r.contact and r.image.abs().max() > 0.1 and r.steps == n.steps
+        assert (n.image - r.image).abs().max() <= 1e-4
+        torch.testing.assert_close(n.force, r.force, rtol=1e-5, atol=1e-7)

@@ -31,6 +31,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
+from tvrecon.sim.bodies.mesh_stack import stacked_sdf_normal
 from tvrecon.sim.mpm.particle_contact import (
     PUSH_CAP_CELLS,
     PUSH_OUT,
@@ -42,7 +43,7 @@ from tvrecon.sim.mpm.particle_contact import (
 )
 from tvrecon.sim.mpm.state import ParticleState
 
-__all__ = ["MARGIN", "FreeFlight", "contact_free", "moves_rigidly"]
+__all__ = ["MARGIN", "FreeFlight", "contact_free", "free_of_mesh", "moves_rigidly"]
 
 #: a step is free only when every candidate's normal velocity clears its floor by this fraction of the speed (the real
 #: step's gathered velocity differs from v by float32 round-off, ~1e-7 of it)
@@ -81,16 +82,46 @@ def contact_free(
     runs it), ``normal_floor(phi) - v . n < -MARGIN |v|``. Not read here: the caller reads it."""
     if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
         mesh, cand, scene = stacked_candidates(x, colliders, batch, dx, stack, block, kernels)
-        phi, n = mesh.sdf_normal(x[cand], scene)
-        phi = torch.where(phi < dx, phi, math.inf)  # beyond the reach (or NaN): no contact, as the step's search
-    else:
-        cand, _, phi, n = near_surface(x, colliders, scene_slices(batch, B, block), dx, batch, stack, block)
+        if not cand.numel():
+            return torch.ones((), dtype=torch.bool, device=x.device)
+        args = (x, v, cand, scene, *mesh.lookup_tables(x.dtype), mesh.dx, dx, dt)
+        # compiled: the lookup and the test as one kernel (eager, ~15 ops over the K candidates every free step)
+        return free_of_mesh(*args) if kernels is None else kernels("free_contact", *args)
+    cand, _, phi, n = near_surface(x, colliders, scene_slices(batch, B, block), dx, batch, stack, block)
     if not cand.numel():
         return torch.ones((), dtype=torch.bool, device=x.device)
-    vc = v[cand]  # (K, 3)
-    floor = normal_floor(phi.to(x.dtype), dt, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)  # (K,)
-    need = floor - (vc * n.to(x.dtype)).sum(1)  # > 0: the body pushes
+    return _free(v[cand], phi, n, dx, dt)
+
+
+def _free(vc: Tensor, phi: Tensor, n: Tensor, dx: float, dt: float) -> Tensor:
+    """0-dim bool: no candidate of velocity ``vc`` (K, 3) at sdf ``phi`` (K,) with normal ``n`` (K, 3) is pushed."""
+    floor = normal_floor(phi.to(vc.dtype), dt, PUSH_OUT, PUSH_CAP_CELLS * dx / dt)  # (K,)
+    need = floor - (vc * n.to(vc.dtype)).sum(1)  # > 0: the body pushes
     return (need + MARGIN * vc.abs().amax()).amax() < 0  # NaN: not free
+
+
+def free_of_mesh(
+    x: Tensor,
+    v: Tensor,
+    cand: Tensor,
+    scene: Tensor,
+    cell_f64: Tensor,
+    cell_i64: Tensor,
+    table: Tensor,
+    box: Tensor,
+    up: Tensor,
+    table_dx: float,
+    dx: float,
+    dt: float,
+) -> Tensor:
+    """:func:`contact_free`'s test of the K >= 1 candidates ``cand`` (of the (K,) ``scene``) of stacked mesh colliders,
+    after the search, as one pure function (the compiled backend runs it as one kernel, ``"free_contact"``): their sdf
+    and normals (:func:`~tvrecon.sim.bodies.mesh_stack.stacked_sdf_normal` from ``MeshStack.lookup_tables``,
+    ``table_dx`` the tables' node spacing; +inf beyond the reach of one grid cell ``dx``, as the step's search), then
+    the floor test. x, v: (P, 3). Returns a 0-dim bool."""
+    phi, n = stacked_sdf_normal(x[cand], scene, cell_f64, cell_i64, table, box, up, table_dx)
+    phi = torch.where(phi < dx, phi, math.inf)  # beyond the reach (or NaN): no contact, as the step's search
+    return _free(v[cand], phi, n, dx, dt)
 
 
 class FreeFlight:

@@ -21,6 +21,7 @@ from tvrecon.sim.mpm.compiled.kernels import (
     share_force,
     stencil_base,
 )
+from tvrecon.sim.mpm.free_flight import free_of_mesh
 from tvrecon.sim.mpm.particle_contact import contact_passes, mesh_contact
 
 __all__ = ["CompileFailed", "CompiledKernels", "compiled_kernels"]
@@ -41,6 +42,7 @@ _DYN_DIMS: dict[str, tuple[int | tuple[int, ...] | None, ...]] = {
     "contact": (0, 0, 1, 0, 0, 0, 0, 0, 0),
     "near": ((0, 1), 0, 0, 0, 0),
     "mesh_contact": (0, 0, 0, 1, None, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),  # cand, scene: 5, 6
+    "free_contact": (0, 0, 0, 0, 0, 0, 0, 0, None),  # x, v, cand, scene, then the stacked tables
 }
 
 
@@ -75,6 +77,7 @@ class CompiledKernels:
                 ("contact", contact_passes),
                 ("near", near_blocks),
                 ("mesh_contact", mesh_contact),
+                ("free_contact", free_of_mesh),
             )
         }
 
