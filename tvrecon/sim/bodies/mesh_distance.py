@@ -137,7 +137,8 @@ def surface_distance(
     row = np.repeat(np.arange(len(point)) // 4, n)
     face = faces_of[np.repeat(starts[point], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
     n_faces = len(surface.faces)
-    key = np.unique(row.astype(np.int64) * n_faces + face)  # sorted: the rows in order
+    key = np.sort(row.astype(np.int64) * n_faces + face)  # the rows in order; np.unique's result, ~4x faster here
+    key = key[np.r_[True, key[1:] != key[:-1]]]
     row, face = key // n_faces, key % n_faces
     q = nodes[close[row]]
     exact = point_triangle_distance(np.asarray(surface.triangles)[face], q)
