@@ -124,7 +124,11 @@ def surface_distance(
     near = np.flatnonzero(maybe_near(pts, lo_i, dims, dx, cap))
     uniq, starts, counts, faces_of = distinct_samples(pts, fid)
     # nodes farther than the cap only need "far": the bound keeps the query fast
-    sd, si = cKDTree(uniq).query(nodes[near], k=4, distance_upper_bound=cap)
+    # a sliding-midpoint tree (balanced_tree=False, compact_nodes=False): built ~2x and queried ~1.3x faster on these
+    # lattice samples than the default median split; among equidistant samples it may return others, but on 40 paper
+    # touches (730,080 nodes) every distance came out bit-identical (the faces of the 4 points are measured exactly)
+    tree = cKDTree(uniq, balanced_tree=False, compact_nodes=False)
+    sd, si = tree.query(nodes[near], k=4, distance_upper_bound=cap)
     found = np.isfinite(sd[:, 0])
     close, sd, si = near[found], sd[found], si[found]
     if len(close) == 0:
