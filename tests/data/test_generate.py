@@ -218,3 +218,36 @@ def test_export_copies_the_presets_entries_and_they_read_as_cached(tmp_path: Pat
     assert export_entries(ds, tmp_path / "again").present == 3  # a second export copies nothing
     with pytest.raises(ValueError, match="own cache folder"):
         export_entries(ds, dest)
+
+
+def test_an_item_that_fails_is_named_and_what_was_done_stays_cached(tmp_path: Path, monkeypatch):
+    """An error while generating an item names the split, the item and its object: the same type for Python's own
+    exceptions (a FloatingPointError of a press that diverged stays one), ItemFailed for others; the items finished
+    before it stay cached and the same command goes on from them."""
+    from tvrecon.data import generate
+    from tvrecon.data.generated_dataset import GeneratedDataset
+
+    args = ARGS + [f"cache_dir={tmp_path}", "workers=1", "splits=train"]
+    raw = GeneratedDataset.raw
+
+    class Exploded(Exception):
+        def __init__(self, cells: float) -> None:
+            super().__init__(f"moved {cells} cells")
+
+    for err, kind in ((FloatingPointError("MPM state exploded"), FloatingPointError), (Exploded(1.5), None)):
+
+        def failing(self, index, err=err):  # noqa: ANN001, ANN202
+            if index == 1:
+                raise err
+            return raw(self, index)
+
+        monkeypatch.setattr(GeneratedDataset, "raw", failing)
+        want = kind or generate.ItemFailed
+        with pytest.raises(want, match=r"split 'train' item 1 \(\w+, instance \d+\)") as info:
+            main(args)
+        assert info.value.__cause__ is err and str(err) in str(info.value)
+        if kind is None:
+            assert str(info.value).startswith("Exploded: ")
+    monkeypatch.setattr(GeneratedDataset, "raw", raw)
+    (st,) = main(args)
+    assert st.skipped == 1 and st.generated == 2  # item 0 was cached before item 1 failed

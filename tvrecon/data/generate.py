@@ -158,8 +158,33 @@ def _work(job: tuple[int, int]) -> tuple[tuple[int, int], bool]:
     """Generate item ``index`` of the worker's dataset ``split`` (``job = (split, index)``)."""
     assert _DATASETS, "worker not initialised"
     split, index = job
-    _, hit = _DATASETS[split].raw(index)
+    _, hit = raw_named(_DATASETS[split], index)
     return job, hit
+
+
+class ItemFailed(RuntimeError):
+    """An item could not be generated (an error of a type of its own); the message names the item and the error."""
+
+
+def raw_named(ds: GeneratedDataset, index: int) -> tuple[dict, bool]:
+    """``ds.raw(index)``; an error is raised again naming the item (a run of thousands of items otherwise ends on an
+    error that does not say which object to look at): the same type for Python's own exceptions (a ValueError stays
+    a usage error for the CLI's exit code), :class:`ItemFailed` for others."""
+    try:
+        return ds.raw(index)
+    except Exception as err:  # noqa: BLE001 - re-raised with the item's name
+        name, instance = ds.object_of(index)
+        msg = (
+            f"split {ds.split!r} item {index} ({name}, instance {instance}): {err}. The items finished before it are "
+            "cached: the same command goes on from them"
+        )
+        named: Exception = ItemFailed(f"{type(err).__name__}: {msg}")
+        if type(err).__module__ == "builtins":
+            try:
+                named = type(err)(msg)
+            except TypeError:  # a type built from more than a message (UnicodeDecodeError): ItemFailed
+                pass
+        raise named from err
 
 
 class WorkerDied(RuntimeError):
@@ -331,7 +356,7 @@ def pregenerate_splits(
             if todo:
                 keep_freed_memory()  # as each worker does (_init_worker)
             for k, i in todo:
-                sets[k].raw(i)
+                raw_named(sets[k], i)
                 done(k)
         else:
             for k, _ in _pool_generate(sets, todo, procs, [n for n, c in zip(names, left) if c]):
