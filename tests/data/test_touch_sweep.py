@@ -183,6 +183,49 @@ def test_a_diverging_touch_is_pressed_again_with_a_smaller_step() -> None:
     assert torch.isfinite(fine[0].image).all() and fine[0].contact
 
 
+def test_a_touch_that_diverges_at_every_step_is_pressed_with_the_grid_contact(monkeypatch, caplog) -> None:
+    """A touch whose particle-contact press diverges at every step size (as the shared_base mug's handle from the side
+    on ``cls_paper``) is pressed with the grid contact, with a warning naming the item and the touch; the others keep
+    the particle contact. When the grid contact diverges too, the error stands."""
+    import logging
+
+    from tvrecon.data import generated_dataset
+
+    ds = TactileClassificationDataset(
+        num_objects=1,
+        touches_per_object=3,
+        touch=_block("touch", "paper_sweep"),
+        cache_dir=None,
+        sensor=_block("sensor", "eip_tiny"),
+        press=_block("press", "eip_tiny"),
+    )
+    assert ds.simulator.cfg.contact == "particle"
+    real = generated_dataset.simulate_touches
+    calls = []
+
+    def flaky(sim, mesh, touches, batch_size=1, grid_too=False):  # noqa: ANN001, ANN202
+        change = touches.strengths[0]
+        calls.append((len(touches.strengths), change.get("dt"), change.get("contact")))
+        bad = len(touches.strengths) > 1 or (float(touches.directions[0, 2]) > -0.5 and change.get("contact") is None)
+        if bad or (grid_too and change.get("contact") == "grid"):
+            raise FloatingPointError("MPM state exploded")
+        return real(sim, mesh, touches, batch_size=batch_size)
+
+    monkeypatch.setattr(generated_dataset, "simulate_touches", flaky)
+    with caplog.at_level(logging.WARNING, logger=generated_dataset.__name__):
+        item = ds.raw(0)[0]
+    side = [t for t in range(3) if float(item["directions"][t, 2]) > -0.5]  # the sweep's side touch (0 degrees)
+    assert side == [0] and item["contact"].all() and np.abs(item["tactile"]).max() > 0.05
+    assert [c for c in calls if c[2] == "grid"] == [(1, None, "grid")]  # after the batch, the press alone, 3 halvings
+    assert sum(1 for c in calls if c[0] == 1 and c[2] is None) == 4 + 2  # touch 0: 4 step sizes; 1, 2: once each
+    (msg,) = [r.getMessage() for r in caplog.records if "grid contact" in r.getMessage()]
+    assert "train item 0 (" in msg and "touch 0" in msg and "dt / 8" in msg
+    monkeypatch.setattr(generated_dataset, "simulate_touches", lambda *a, **k: flaky(*a, **{**k, "grid_too": True}))
+    mesh = ds.mesh(0)
+    with pytest.raises(FloatingPointError, match="exploded"):
+        ds._simulate_stable(mesh, sample_touches(mesh, 3, seed=0, policy=ds.touch, sim=ds.simulator))
+
+
 def test_shuffled_order_is_the_same_sweep_and_sweep_order_keeps_the_key() -> None:
     sim = _tiny_sim()
     box = trimesh.creation.box()
