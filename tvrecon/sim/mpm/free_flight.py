@@ -85,8 +85,12 @@ def contact_free(
         if not cand.numel():
             return torch.ones((), dtype=torch.bool, device=x.device)
         args = (x, v, cand, scene, *mesh.lookup_tables(x.dtype), mesh.dx, dx, dt)
-        # compiled: the lookup and the test as one kernel (eager, ~15 ops over the K candidates every free step)
-        return free_of_mesh(*args) if kernels is None else kernels("free_contact", *args)
+        # compiled: the lookup and the test as one kernel (eager, ~15 ops over the K candidates every free step). Not
+        # for one candidate or one scene: dynamo compiles sizes 1 as graphs of their own, and those come mid-job (a
+        # touch pressed alone after its batch diverged), a recompile of a few CPU-s for a step eager does in a ms
+        if kernels is None or cand.numel() < 2 or len(colliders) < 2:
+            return free_of_mesh(*args)
+        return kernels("free_contact", *args)
     cand, _, phi, n = near_surface(x, colliders, scene_slices(batch, B, block), dx, batch, stack, block)
     if not cand.numel():
         return torch.ones((), dtype=torch.bool, device=x.device)
