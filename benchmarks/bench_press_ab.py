@@ -1,14 +1,17 @@
 """Paper-preset touches pressed by an earlier commit's simulator and by the working tree, in one process (not a test).
 
     OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_ab.py --old REV [--touches 4]
-        [--first 1] [--stride 3] [--eager] [--contact grid|particle] [--preset cls_paper]
+        [--first 1] [--stride 3] [--eager] [--contact grid|particle] [--preset cls_paper] [--per-object 1]
 
 ``git archive REV tvrecon`` is unpacked into a temporary folder as the package ``tvrecon_old`` (imports renamed), so
 both versions run side by side; each touch (classes ``first + stride * i`` of ``available_classes()``, seeded
 cone-policy touch, paper preset: 64x64x6 pad, n_grid 128) is pressed by both, alternating which goes first, on one
 thread, with ``compile=True`` unless ``--eager``. Prints per touch the CPU seconds, the old/new ratio and the reading
 differences (image in grid cells, relative force; whether the whole reading is bit-identical: :func:`identical`), then
-the median and total ratio. Used for each step of issue 13
+the median and total ratio. ``--per-object N``: each job is N touches of one object, pressed on one mesh object by
+``simulate_touches`` (those of one strength in one ``press_batch`` call) as ``generate`` presses an item; CPU-s per
+touch, the readings of all N compared.
+Used for each step of issue 13
 step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine. ``--contact`` sets
 ``PressConfig.contact`` of both (the old revision must know the field). ``--preset NAME`` takes the pad, the press
 and the touch policy of that data preset instead (e.g. ``cls_paper``: the authors' 61x61x10 pad, the object at 0.16 of
@@ -31,6 +34,7 @@ import warnings
 from pathlib import Path
 
 import torch
+import trimesh
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
@@ -39,7 +43,7 @@ sys.path.insert(0, str(ROOT))
 
 from tvrecon.data.presets import compose_preset  # noqa: E402
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
 from tvrecon.sim.mpm.state import CONTACT_MODES  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
 from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
@@ -76,6 +80,7 @@ def main() -> None:
     parser.add_argument("--eager", action="store_true", help="compare the eager paths (default: compile=True)")
     parser.add_argument("--contact", choices=CONTACT_MODES, default=None, help="PressConfig.contact of both")
     parser.add_argument("--preset", default=None, help="a data preset's pad, press and touches (e.g. cls_paper)")
+    parser.add_argument("--per-object", type=int, default=1, help="touches of one object per press_batch call")
     args = parser.parse_args()
     torch.set_num_threads(1)
     comp = not args.eager
@@ -96,42 +101,51 @@ def main() -> None:
         old = op.EIPSimulator(old_sensor(**sensor_kw), op.PressConfig(**press_kw), compile=comp)
         classes = available_classes()
         jobs = []
+        n = args.per_object
         for i in range(args.touches):
             name = classes[(args.first + args.stride * i) % len(classes)]
             mesh = make_shape(name, 0)
-            t = sample_touches(mesh, 1, seed=i, policy=policy, sim=new)
-            jobs.append((name, mesh, t.positions[0], t.directions[0], t.strengths[0]))
+            jobs.append((name, mesh, sample_touches(mesh, n, seed=i, policy=policy, sim=new)))
         warnings.simplefilter("ignore")
+
+        def fresh(mesh):  # each version's own mesh object: what trimesh caches on it is not shared between them
+            return trimesh.Trimesh(vertices=mesh.vertices.copy(), faces=mesh.faces.copy(), process=False)
+
         for sim in (old, new):  # warm-up (and compile)
-            sim.press(*jobs[0][1:4], **jobs[0][4])
+            simulate_touches(sim, fresh(jobs[0][1]), jobs[0][2], batch_size=n)
         print(
             f"torch {torch.__version__}, 1 thread, {'compiled' if comp else 'eager'}; old = {args.old}; "
             f"contact {args.contact or 'default'}; pad, press and touches of "
             f"{args.preset or 'the 64x64x6 pad on 128^3 (cone touches)'}"
         )
         ratios, t_old, t_new, differ = [], 0.0, 0.0, 0
-        for k, (name, mesh, pos, d, kw) in enumerate(jobs):
+        for k, (name, mesh, touches) in enumerate(jobs):
             out = {}
             for which, sim in (("old", old), ("new", new)) if k % 2 == 0 else (("new", new), ("old", old)):
+                m = fresh(mesh)
                 c0 = time.process_time()
-                r = sim.press(mesh, pos, d, **kw)
-                out[which] = (time.process_time() - c0, r)
-            (a, ra), (b, rb) = out["old"], out["new"]
+                r = simulate_touches(sim, m, touches, batch_size=n)
+                out[which] = ((time.process_time() - c0) / n, r)
+            (a, ras), (b, rbs) = out["old"], out["new"]
             ratios.append(a / b)
             t_old, t_new = t_old + a, t_new + b
-            di = (ra.image - rb.image).abs().max().item()
-            df = ((ra.force - rb.force).norm() / ra.force.norm().clamp_min(1e-30)).item()
-            same = identical(ra, rb)
-            differ += int(not same)
-            print(
-                f"{name:12s} steps {ra.steps}/{rb.steps} old {a:5.2f} new {b:5.2f} CPU-s old/new {a / b:5.3f}; "
-                f"max|d image| {di:.2g}, |d force|/|force| {df:.2g}, bit-identical reading {same}"
+            di = max((ra.image - rb.image).abs().max().item() for ra, rb in zip(ras, rbs))
+            df = max(
+                ((ra.force - rb.force).norm() / ra.force.norm().clamp_min(1e-30)).item() for ra, rb in zip(ras, rbs)
             )
-        n = len(jobs)
+            same = all(identical(ra, rb) for ra, rb in zip(ras, rbs))
+            differ += int(not same)
+            steps = "/".join(f"{ra.steps}" for ra in ras[:3]) + ("..." if n > 3 else "")
+            same_steps = all(ra.steps == rb.steps for ra, rb in zip(ras, rbs))
+            print(
+                f"{name:12s} steps {steps} (same in both: {same_steps}) old {a:5.2f} new {b:5.2f} CPU-s a touch, "
+                f"old/new {a / b:5.3f}; max|d image| {di:.2g}, |d force|/|force| {df:.2g}, bit-identical {same}"
+            )
+        J = len(jobs)
         print(
             f"median old/new {statistics.median(ratios):.3f}, total {t_old / t_new:.3f} "
-            f"({t_old / n:.2f} -> {t_new / n:.2f} CPU-s per touch on this machine's load); readings not bit-identical: "
-            f"{differ} of {n}"
+            f"({t_old / J:.3f} -> {t_new / J:.3f} CPU-s per touch on this machine's load, {n} touches a call); jobs "
+            f"not bit-identical: {differ} of {J}"
         )
 
 
