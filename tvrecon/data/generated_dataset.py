@@ -259,9 +259,9 @@ class GeneratedDataset(Dataset):
         alone and one that diverges again is pressed with the time step halved, up to ``halvings`` times. A touch that
         diverges at every step with the particle contact (the shared_base mug's handle from the side on the authors'
         grid, ``cls_paper`` val item 45: the state blows up 72 steps in at every step size) is pressed once more with
-        the grid contact (``contact="grid"``, the solver's default: the object acts on the grid nodes inside it), and a
-        warning names it. Deterministic: the same touches take the same path on every run. Raises FloatingPointError when that
-        diverges too."""
+        the grid contact (``contact="grid"``, the solver's default: the object acts on the grid nodes inside it), and
+        a warning names it. Deterministic: the same touches take the same path on every run. Raises FloatingPointError
+        when that diverges too."""
         try:
             return simulate_touches(self.simulator, mesh, touches, batch_size=len(touches.strengths))
         except FloatingPointError:
