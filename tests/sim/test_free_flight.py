@@ -94,17 +94,25 @@ def test_what_is_not_a_free_translation_is_stepped_in_full(case):
     assert solver.flight.steps == 0 and solver.flight.over
 
 
-def test_a_press_reads_the_same_with_free_flight(monkeypatch):
-    """Two touches of a mesh in one loop, eager, with and without free flight: the same steps, images within 1e-4
-    grid cells (the tolerance of the compiled readings), forces within 1e-4; the approach was translated."""
-    from tvrecon.sim.mpm import free_flight
-    from tvrecon.sim.press import EIPSimulator, PressConfig, loop
+def _two_touches():
+    """A sphere, a small pad 2 cells away with the particle contact, and two touches of it: (mesh, sensor, press,
+    positions, directions)."""
+    from tvrecon.sim.press import PressConfig
     from tvrecon.sim.sensor.pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor = SensorConfig(resolution=(12, 12), layers=4)
     press = PressConfig(n_grid=48, contact="particle", gap=2.0)
-    pos, dirs = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]], [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+    return mesh, sensor, press, [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]], [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+
+
+def test_a_press_reads_the_same_with_free_flight(monkeypatch):
+    """Two touches of a mesh in one loop, eager, with and without free flight: the same steps, images within 1e-4
+    grid cells (the tolerance of the compiled readings), forces within 1e-4; the approach was translated."""
+    from tvrecon.sim.mpm import free_flight
+    from tvrecon.sim.press import EIPSimulator, loop
+
+    mesh, sensor, press, pos, dirs = _two_touches()
     monkeypatch.setattr(loop, "FREE_FLIGHT", False)
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
     monkeypatch.setattr(loop, "FREE_FLIGHT", True)
@@ -164,13 +172,9 @@ def test_a_compiled_press_tests_its_free_steps_in_one_kernel(monkeypatch):
     """A compiled press of a mesh: its free steps run the ``"free_contact"`` kernel, and it reads what the eager press
     with free flight reads (the same steps, images within 1e-4 grid cells, forces within 1e-5)."""
     from tvrecon.sim.mpm.compiled import backend
-    from tvrecon.sim.press import EIPSimulator, PressConfig, loop
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.press import EIPSimulator, loop
 
-    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
-    sensor = SensorConfig(resolution=(12, 12), layers=4)
-    press = PressConfig(n_grid=48, contact="particle", gap=2.0)
-    pos, dirs = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]], [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
+    mesh, sensor, press, pos, dirs = _two_touches()
     monkeypatch.setattr(loop, "FREE_FLIGHT", True)
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
     used: dict[str, int] = {}
