@@ -32,6 +32,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import stacked_sdf_normal
+from tvrecon.sim.mpm.contact_reach import speed_reach
 from tvrecon.sim.mpm.particle_contact import (
     PUSH_CAP_CELLS,
     PUSH_OUT,
@@ -79,9 +80,15 @@ def contact_free(
     particle:
     for every candidate within a cell of its body (:func:`~tvrecon.sim.mpm.particle_contact.near_surface`, the step's
     own search; with stacked mesh colliders and the compiled ``kernels``, their prefilter kernel as the compiled step
-    runs it), ``normal_floor(phi) - v . n < -MARGIN |v|``. Not read here: the caller reads it."""
+    runs it), ``normal_floor(phi) - v . n < -MARGIN |v|``. The search stops at ``dt |v|`` (and a slack) where no
+    candidate list is kept: no particle farther can fail the test. Not read here: the caller reads it."""
+    # a particle farther than dt |v| (1 + MARGIN) is not pushed: the search need not reach a whole cell (speed_reach
+    # with one pass and no push-out; its slack 1e-3 covers MARGIN / sqrt(3)), except with a kept list (fixed reach)
+    reach: float | Tensor = dx
+    if (stack is None or stack.skin <= 0) and v.numel():
+        reach = speed_reach(v.abs().amax(), dt, dx, 1, 0.0)
     if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
-        mesh, cand, scene = stacked_candidates(x, colliders, batch, dx, stack, block, kernels)
+        mesh, cand, scene = stacked_candidates(x, colliders, batch, reach, stack, block, kernels)
         if not cand.numel():
             return torch.ones((), dtype=torch.bool, device=x.device)
         args = (x, v, cand, scene, *mesh.lookup_tables(x.dtype), mesh.dx, dx, dt)
@@ -91,7 +98,7 @@ def contact_free(
         if kernels is None or cand.numel() < 2 or len(colliders) < 2:
             return free_of_mesh(*args)
         return kernels("free_contact", *args)
-    cand, _, phi, n = near_surface(x, colliders, scene_slices(batch, B, block), dx, batch, stack, block)
+    cand, _, phi, n = near_surface(x, colliders, scene_slices(batch, B, block), reach, batch, stack, block)
     if not cand.numel():
         return torch.ones((), dtype=torch.bool, device=x.device)
     return _free(v[cand], phi, n, dx, dt)

@@ -41,11 +41,13 @@ from torch import Tensor
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import MeshStack, stacked_sdf_normal
 from tvrecon.sim.mpm.compiled.contact import contact_grid_available, fused_contact
+from tvrecon.sim.mpm.contact_reach import speed_reach
 from tvrecon.sim.mpm.grid import Stencil, bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
 
 __all__ = [
     "contact_passes",
+    "contact_search_reach",
     "contact_setup",
     "MeshStackCache",
     "mesh_contact",
@@ -125,7 +127,7 @@ def near_surface(
     x: Tensor,
     colliders: Sequence[Collider | None],
     scenes: Sequence[slice | Tensor],
-    reach: float,
+    reach: float | Tensor,
     batch: Tensor | None = None,
     stack: MeshStackCache | None = None,
     block: int | None = None,
@@ -134,7 +136,7 @@ def near_surface(
 
     Args:
         x: (P, 3) positions. colliders: one collider (or None) per scene. scenes: the particles of each scene
-            (:func:`scene_slices`). reach: distance (domain units).
+            (:func:`scene_slices`). reach: distance (domain units; a 0-dim tensor too).
         batch: (P,) int64 scene of each particle (None: one scene), for the one-pass search of mesh colliders.
         stack: where the stacked tables of the last colliders are kept between steps (None: the loop over scenes).
         block: particles per scene when ``batch`` is the contiguous layout (``MLSMPM._scenes``), else None.
@@ -232,7 +234,7 @@ def _near_stacked(
     x: Tensor,
     colliders: Sequence[MeshCollider],
     batch: Tensor | None,
-    reach: float,
+    reach: float | Tensor,
     cache: MeshStackCache,
     block: int | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -250,14 +252,15 @@ def stacked_candidates(
     x: Tensor,
     colliders: Sequence[MeshCollider],
     batch: Tensor | None,
-    reach: float,
+    reach: float | Tensor,
     cache: MeshStackCache,
     block: int | None = None,
     kernels: Callable[..., Tensor] | None = None,
 ) -> tuple[MeshStack, Tensor, Tensor]:
     """The stacked colliders and the (K,) int64 particles (and their (K,) scenes) that may be within ``reach``: the
     cache's kept list while it still covers ``reach``, else one prefilter of every particle and one compaction.
-    ``kernels``: a compiled backend whose ``"near"`` kernel runs the prefilter of a press's contiguous blocks."""
+    ``reach``: a float, or a 0-dim tensor where the cache keeps no list (``skin == 0``). ``kernels``: a compiled
+    backend whose ``"near"`` kernel runs the prefilter of a press's contiguous blocks."""
     stack = cache.get(colliders, x.device)
     kept = cache.candidates(x, batch, reach)
     if kept is not None:
@@ -357,6 +360,7 @@ def particle_contact_grid(
     friction: float,
     kernels: Callable[..., tuple[Tensor, Tensor]] | None = None,
     stack: MeshStackCache | None = None,
+    speed: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """The rigid bodies' impulses on the particles, applied through the grid velocities ``gv`` (N, 3) before G2P
     (paper eq. 8-11). ``st``: the step's stencil (its ``w`` (27, P), ``lin`` and ``D``); ``node_mass``: the (N,)
@@ -386,12 +390,20 @@ def particle_contact_grid(
     so that mesh colliders are searched in one pass over all scenes (None: scene by scene). The eager step passes
     ``node_mass`` with its autograd graph (the impulse share ``w_ip J_p / m_i`` depends on the positions through
     ``m_i`` too); the no-grad compiled step passes the detached grid mass of its transfer.
+
+    The search reaches :func:`~tvrecon.sim.mpm.contact_reach.speed_reach` of the step's speeds (``speed``: 0-dim, the
+    largest node velocity component of ``gv``, None: taken here), a bound on how far a pushed particle can be, instead
+    of the whole cell (the same step, a third of the candidates on the paper pads), except with a kept candidate list
+    (``stack.skin > 0``, the GPU's), whose reach must stay fixed.
     """
     P = state.x.shape[0]
     mu_f = friction
+    reach: float | Tensor = dx
+    if stack is None or stack.skin <= 0:
+        reach = contact_search_reach(gv, speed, hand_velocity, alpha, dt, dx, friction)
     if kernels is not None and stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
         # compiled: the prefilter of a press's blocks, the lookup and set-up, the passes: three kernels
-        mesh, cand, scene = stacked_candidates(state.x, colliders, state.batch, dx, stack, block, kernels)
+        mesh, cand, scene = stacked_candidates(state.x, colliders, state.batch, reach, stack, block, kernels)
         K = cand.numel()
         total = gv.new_zeros(K, 3)
         if K:
@@ -419,7 +431,7 @@ def particle_contact_grid(
         force = gv.new_zeros(B, 3).index_add(0, scene, total)
         return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total.detach())
     slices = scene_slices(state.batch, B, block)
-    cand, scene, phi, n = near_surface(state.x, colliders, slices, dx, state.batch, stack, block)
+    cand, scene, phi, n = near_surface(state.x, colliders, slices, reach, state.batch, stack, block)
     K = cand.numel()
     total = gv.new_zeros(K, 3)
     if K:
@@ -430,6 +442,24 @@ def particle_contact_grid(
         gv, total = contact_passes(*args) if kernels is None else _compiled_passes(kernels, args)
     force = gv.new_zeros(B, 3).index_add(0, scene, total)
     return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total.detach())
+
+
+def contact_search_reach(
+    gv: Tensor,
+    speed: Tensor | None,
+    hand_velocity: Tensor | None,
+    alpha: Tensor | None,
+    dt: float,
+    dx: float,
+    friction: float,
+) -> Tensor:
+    """0-dim: :func:`~tvrecon.sim.mpm.contact_reach.speed_reach` of a step whose node velocities before the contact
+    are ``gv`` (N, 3) (``speed``: their largest component when the caller has it, else taken here) and whose hand
+    moves at ``hand_velocity`` where ``alpha`` holds particles to it (paper eq. 8)."""
+    s = gv.detach().abs().amax() if speed is None else speed.detach()
+    if alpha is not None and hand_velocity is not None and hand_velocity.numel():
+        s = torch.maximum(s.to(hand_velocity.dtype), hand_velocity.detach().abs().amax())
+    return speed_reach(s, dt, dx, ITERATIONS, PUSH_CAP_CELLS * dx / dt, friction)
 
 
 def contact_setup(

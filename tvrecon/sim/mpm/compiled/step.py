@@ -251,6 +251,7 @@ def _particle_contact(
         cfg.friction,
         kernels,
         stack,
+        vmax,
     )
     return gv, force, transfer, pforce, vmax
 
