@@ -168,9 +168,12 @@ def test_free_of_mesh_is_the_floor_test_on_the_stacked_lookup():
 
 @pytest.mark.slow
 @needs_compiler
-def test_a_compiled_press_tests_its_free_steps_in_one_kernel(monkeypatch):
-    """A compiled press of a mesh: its free steps run the ``"free_contact"`` kernel, and it reads what the eager press
-    with free flight reads (the same steps, images within 1e-4 grid cells, forces within 1e-5)."""
+@pytest.mark.parametrize("loop_on", [False, True])
+def test_a_compiled_press_tests_its_free_steps_in_one_kernel(monkeypatch, request, loop_on):
+    """A compiled press of a mesh: its free steps run the ``"free_contact"`` kernel (``loop_on``: on one CPU thread,
+    the search of the C++ contact loop, ``mesh_search``, instead), and it reads what the eager press with free flight
+    reads (the same steps, images within 1e-4 grid cells, forces within 1e-5)."""
+    from tvrecon.sim.mpm import free_flight, particle_contact
     from tvrecon.sim.mpm.compiled import backend
     from tvrecon.sim.press import EIPSimulator, loop
 
@@ -184,9 +187,21 @@ def test_a_compiled_press_tests_its_free_steps_in_one_kernel(monkeypatch):
         used[name] = used.get(name, 0) + 1
         return call(self, name, *args)
 
+    search = free_flight.mesh_search
+
+    def searched(*args):  # noqa: ANN002, ANN202
+        used["mesh_search"] = used.get("mesh_search", 0) + 1
+        return search(*args)
+
     monkeypatch.setattr(backend.CompiledKernels, "__call__", counted)
+    monkeypatch.setattr(free_flight, "mesh_search", searched)
+    if loop_on:
+        request.getfixturevalue("one_thread")  # the C++ loops' condition
+    else:
+        for module in (free_flight, particle_contact):
+            monkeypatch.setattr(module, "mesh_contact_loop_available", lambda *a: False)
     new = EIPSimulator(sensor, press, compile=True).press_batch(mesh, pos, dirs)
-    assert used.get("free_contact", 0) >= 5, used
+    assert used.get("mesh_search" if loop_on else "free_contact", 0) >= 5, used
     for r, n in zip(ref, new):
         assert r.contact and r.image.abs().max() > 0.1 and r.steps == n.steps
         assert (n.image - r.image).abs().max() <= 1e-4

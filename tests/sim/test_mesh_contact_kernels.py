@@ -12,6 +12,7 @@ from test_mesh_stack import _colliders, _points
 from test_mpm_compile import needs_compiler
 
 from tvrecon.sim.bodies.mesh_stack import MeshStack, near_blocks
+from tvrecon.sim.mpm import particle_contact
 from tvrecon.sim.mpm.compiled import backend
 from tvrecon.sim.mpm.grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.particle_contact import contact_setup, mesh_contact
@@ -71,6 +72,8 @@ def test_compiled_mesh_press_batch_uses_the_mesh_kernels_and_matches_eager(monke
     pos = [[0.0, 0.0, 0.3], [0.3, 0.0, 0.0]]
     dirs = [[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]
     monkeypatch.setattr(press_loop, "FREE_FLIGHT", False)  # every step a full one (free flight: test_free_flight.py)
+    # the kernels, not the C++ loop of one thread (test_mpm_contact_loop.py)
+    monkeypatch.setattr(particle_contact, "mesh_contact_loop_available", lambda *a: False)
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
     used: dict[str, int] = {}
     call = backend.CompiledKernels.__call__

@@ -71,9 +71,12 @@ def test_fused_contact_refuses_a_node_outside_the_grid(one_thread):
 
 @pytest.mark.slow
 @needs_compiler
-def test_compiled_mesh_press_runs_the_fused_passes(one_thread, monkeypatch):
-    """Two touches of a mesh in one loop, compiled on one thread vs eager: the passes ran as the C++ loop at every
-    step with contact candidates, and the readings are within the tolerances of ``compile=True`` (1e-4 cells)."""
+@pytest.mark.parametrize("loop", ["mesh_contact_loop", "passes"])
+def test_compiled_mesh_press_runs_the_fused_loops(one_thread, monkeypatch, loop):
+    """Two touches of a mesh in one loop, compiled on one thread vs eager: the contact ran as its C++ loop at every
+    step with contact candidates (``loop``: the whole contact of the mesh colliders, ``compiled.mesh_contact_loop``;
+    or, with that one off, the passes alone after the kernels' search), and the readings are within the tolerances
+    of ``compile=True`` (1e-4 cells)."""
     from tvrecon.sim.press import EIPSimulator, PressConfig
     from tvrecon.sim.sensor.pad import SensorConfig
 
@@ -84,14 +87,18 @@ def test_compiled_mesh_press_runs_the_fused_passes(one_thread, monkeypatch):
     monkeypatch.setattr(press_loop, "FREE_FLIGHT", False)  # every step a full one (free flight: test_free_flight.py)
     ref = EIPSimulator(sensor, press).press_batch(mesh, pos, dirs)
     calls = []
+    if loop == "passes":
+        monkeypatch.setattr(particle_contact, "mesh_contact_loop_available", lambda *a: False)
+    name = "fused_contact" if loop == "passes" else "fused_mesh_contact"
+    fn = getattr(particle_contact, name)
 
     def counted(*args):  # noqa: ANN002, ANN202
         calls.append(args[0].shape[0])
-        return contact.fused_contact(*args)
+        return fn(*args)
 
-    monkeypatch.setattr(particle_contact, "fused_contact", counted)
+    monkeypatch.setattr(particle_contact, name, counted)
     new = EIPSimulator(sensor, press, compile=True).press_batch(mesh, pos, dirs)
-    assert len(calls) >= max(r.steps for r in new) // 2, "the compiled steps must use the fused passes here"
+    assert len(calls) >= max(r.steps for r in new) // 2, f"the compiled steps must use the {loop} loop here"
     for r, n in zip(ref, new):
         assert r.contact and r.image.abs().max() > 0.1 and r.steps == n.steps
         assert (n.image - r.image).abs().max() <= 1e-4

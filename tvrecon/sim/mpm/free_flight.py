@@ -32,6 +32,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import stacked_sdf_normal
+from tvrecon.sim.mpm.compiled.mesh_contact_loop import mesh_contact_loop_available, mesh_search
 from tvrecon.sim.mpm.contact_reach import speed_reach
 from tvrecon.sim.mpm.particle_contact import (
     PUSH_CAP_CELLS,
@@ -87,7 +88,12 @@ def contact_free(
     reach: float | Tensor = dx
     if (stack is None or stack.skin <= 0) and v.numel():
         reach = speed_reach(v.abs().amax(), dt, dx, 1, 0.0)
-    if stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
+    mesh_only = stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders)
+    if mesh_only and kernels is not None and isinstance(reach, Tensor) and mesh_contact_loop_available(x, B, block, v):
+        # CPU, one thread: the search of the compiled step's C++ loop, the test on the few it finds
+        cand, phi, n = mesh_search(x, stack.get(colliders, x.device), reach, block)
+        return _free(v[cand], phi, n, dx, dt) if cand.numel() else torch.ones((), dtype=torch.bool, device=x.device)
+    if mesh_only:
         mesh, cand, scene = stacked_candidates(x, colliders, batch, reach, stack, block, kernels)
         if not cand.numel():
             return torch.ones((), dtype=torch.bool, device=x.device)

@@ -41,6 +41,7 @@ from torch import Tensor
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import MeshStack, stacked_sdf_normal
 from tvrecon.sim.mpm.compiled.contact import contact_grid_available, fused_contact
+from tvrecon.sim.mpm.compiled.mesh_contact_loop import fused_mesh_contact, mesh_contact_loop_available
 from tvrecon.sim.mpm.contact_reach import speed_reach
 from tvrecon.sim.mpm.grid import Stencil, bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
@@ -402,12 +403,24 @@ def particle_contact_grid(
     if stack is None or stack.skin <= 0:
         reach = contact_search_reach(gv, speed, hand_velocity, alpha, dt, dx, friction)
     if kernels is not None and stack is not None and colliders and all(isinstance(c, MeshCollider) for c in colliders):
+        hv = hand_velocity if hand_velocity is None or hand_velocity.dim() == 2 else hand_velocity[None]
+        if isinstance(reach, Tensor) and mesh_contact_loop_available(state.x, B, block, gv, node_mass, alpha, hv):
+            # CPU, one thread: search, set-up and passes as one C++ loop, only the candidates within the reach
+            mesh = stack.get(colliders, state.x.device)
+            stack.searches += 1
+            shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
+            push_cap = PUSH_CAP_CELLS * dx / dt
+            gv, cand, total = fused_mesh_contact(
+                gv, node_mass, st.lin, st.fx.T, shifts, state.x, state.mass, alpha, hv, mesh, reach, block, dt, mu_f,
+                PUSH_OUT, push_cap, ITERATIONS,
+            )  # fmt: skip
+            force = gv.new_zeros(B, 3).index_add(0, torch.div(cand, block, rounding_mode="floor"), total)
+            return gv, force, gv.new_zeros(P, 3).index_add(0, cand, total)
         # compiled: the prefilter of a press's blocks, the lookup and set-up, the passes: three kernels
         mesh, cand, scene = stacked_candidates(state.x, colliders, state.batch, reach, stack, block, kernels)
         K = cand.numel()
         total = gv.new_zeros(K, 3)
         if K:
-            hv = hand_velocity if hand_velocity is None or hand_velocity.dim() == 2 else hand_velocity[None]
             shifts = stencil_shifts(st.D[1] * st.D[2], st.D[2], st.lin.device)
             prep = kernels(
                 "mesh_contact",
