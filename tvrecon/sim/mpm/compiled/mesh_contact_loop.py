@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.bodies.mesh_stack import MeshStack
+from tvrecon.sim.mpm.compiled.contact import SOURCE as CONTACT_SOURCE
 from tvrecon.sim.mpm.compiled.cpp_loop import CppLoop, ptr
 
 __all__ = ["SOURCE", "fused_mesh_contact", "mesh_contact_loop_available", "mesh_search"]
@@ -34,11 +35,11 @@ __all__ = ["SOURCE", "fused_mesh_contact", "mesh_contact_loop_available", "mesh_
 #: the C++ source: (1) per scene b and particle p of its block, the prefilter (the least node sdf of the cell of
 #: ``near_blocks``, its margins), then the trilinear sdf and normal of ``stacked_sdf_normal`` and the keep test ``phi
 #: < reach``; (2) per kept candidate its 27 stencil nodes ``lin[p] + shifts[o]``, weights (``bspline_weights``) and
-#: shares ``w dt / m_i``; (3) the passes of :mod:`.contact`. Returns the number of candidates K, or -(k + 1) when
-#: candidate k has a stencil node outside the grid (nothing written to the grid then).
-SOURCE = r"""
-#include <cmath>
-#include <cstdint>
+#: shares ``w dt / m_i``; (3) the passes: :mod:`.contact`'s ``contact_grid``, whose source comes first. Returns the
+#: number of candidates K, or -(k + 1) when candidate k has a stencil node outside the grid (the grid then unchanged).
+SOURCE = (
+    CONTACT_SOURCE
+    + r"""
 #include <vector>
 extern "C" int64_t mesh_search(
     const float* x, int64_t sp, int64_t sa, int64_t B, int64_t block, const float* lo32, const int64_t* cdims,
@@ -126,17 +127,17 @@ extern "C" int64_t mesh_contact_loop(
     float push_cap, int64_t* cand, float* phi, float* nrm, float* total) {
   const int64_t K = mesh_search(x, sp, sa, B, block, lo32, cdims, coff, cmin, tdx, reach_p, cell, ints, table, box,
                                 up, cand, phi, nrm);
-  // contact_setup of the K candidates: stencil nodes, weights, shares w_ip dt / m_i
+  // contact_setup of the K candidates: stencil nodes, weights, shares w_ip dt / m_i, masses, alpha, hand velocity
   std::vector<int64_t> flat(27 * K);
-  std::vector<float> w(27 * K), share(27 * K);
+  std::vector<float> w(27 * K), share(27 * K), m(K), ak(alpha ? K : 0), hk(alpha ? 3 * K : 0), f(3 * K);
   for (int64_t k = 0; k < K; ++k) {
     const int64_t p = cand[k];
     float wa[3][3];
     for (int a = 0; a < 3; ++a) {
-      const float f = fxt[a * P + p];
-      wa[a][0] = 0.5f * ((1.5f - f) * (1.5f - f));
-      wa[a][1] = 0.75f - (f - 1.0f) * (f - 1.0f);
-      wa[a][2] = 0.5f * ((f - 0.5f) * (f - 0.5f));
+      const float fa = fxt[a * P + p];
+      wa[a][0] = 0.5f * ((1.5f - fa) * (1.5f - fa));
+      wa[a][1] = 0.75f - (fa - 1.0f) * (fa - 1.0f);
+      wa[a][2] = 0.5f * ((fa - 0.5f) * (fa - 0.5f));
     }
     for (int o = 0; o < 27; ++o) {
       const int64_t node = lin[p] + shifts[o];
@@ -148,59 +149,21 @@ extern "C" int64_t mesh_contact_loop(
       w[o * K + k] = wo;
       share[o * K + k] = wo * (dt * inv_m);
     }
-  }
-  // the passes (compiled.contact's contact_grid, every candidate within the reach)
-  std::vector<float> f(3 * K);
-  for (int64_t k = 0; k < 3 * K; ++k) total[k] = 0.0f;
-  for (int64_t it = 0; it < iterations; ++it) {
-    for (int64_t k = 0; k < K; ++k) {
-      const int64_t p = cand[k];
-      float* fk = f.data() + 3 * k;
-      const float ph = phi[k];
-      float v[3] = {0.0f, 0.0f, 0.0f};
-      for (int o = 0; o < 27; ++o) {
-        const float wo = w[o * K + k];
-        const float* g = gv + 3 * flat[o * K + k];
-        v[0] += wo * g[0]; v[1] += wo * g[1]; v[2] += wo * g[2];
-      }
-      float scale = mass[p] / dt;
-      if (alpha) {
-        const float ak = alpha[p];
-        const float* h = hv + 3 * (hv_rows == 1 ? 0 : p);
-        for (int a = 0; a < 3; ++a) v[a] = (1.0f - ak) * h[a] + ak * v[a];
-        scale = ak * mass[p] / dt;
-      }
-      const float* nk = nrm + 3 * k;
-      const float inside = std::fmin(-push_out * std::fmin(ph, 0.0f) / dt, push_cap);
-      const float floor_vn = inside - std::fmax(ph, 0.0f) / dt;
-      const float vn = v[0] * nk[0] + v[1] * nk[1] + v[2] * nk[2];
-      const float dvn = std::fmax(floor_vn - vn, 0.0f);
-      if (friction <= 0.0f) {
-        for (int a = 0; a < 3; ++a) fk[a] = dvn * (scale * nk[a]);
-      } else if (dvn > 0.0f) {
-        float vt[3];
-        for (int a = 0; a < 3; ++a) vt[a] = v[a] - vn * nk[a];
-        const float norm = std::sqrt(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
-        const float keep = std::fmax(1.0f - friction * dvn / (norm > 0.0f ? norm : 1.0f), 0.0f);
-        for (int a = 0; a < 3; ++a) fk[a] = scale * ((vt[a] * keep + (vn + dvn) * nk[a]) - v[a]);
-      } else {
-        fk[0] = fk[1] = fk[2] = 0.0f;
-      }
-      for (int a = 0; a < 3; ++a) total[3 * k + a] += fk[a];
-    }
-    for (int64_t k = 0; k < K; ++k) {
-      const float* fk = f.data() + 3 * k;
-      if (fk[0] == 0.0f && fk[1] == 0.0f && fk[2] == 0.0f) continue;
-      for (int o = 0; o < 27; ++o) {
-        const float s = share[o * K + k];
-        float* g = gv + 3 * flat[o * K + k];
-        g[0] += s * fk[0]; g[1] += s * fk[1]; g[2] += s * fk[2];
-      }
+    m[k] = mass[p];
+    if (alpha) {
+      ak[k] = alpha[p];
+      const float* h = hv + 3 * (hv_rows == 1 ? 0 : p);
+      for (int a = 0; a < 3; ++a) hk[3 * k + a] = h[a];
     }
   }
+  // the passes: compiled.contact's loop (its source comes first in this one)
+  contact_grid(gv, flat.data(), w.data(), share.data(), m.data(), alpha ? ak.data() : nullptr,
+               alpha ? hk.data() : nullptr, phi, nrm, K, n_nodes, iterations, dt, friction, push_out, push_cap,
+               f.data(), total);
   return K;
 }
 """
+)
 
 _LOOP = CppLoop(SOURCE, "mesh_contact_loop", "fused mesh contact loop", "the mesh contact kernels", ("mesh_search",))
 
