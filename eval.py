@@ -3,6 +3,7 @@
     python eval.py ckpt_path=logs/train/runs/<time>/checkpoints/last.ckpt
     python eval.py run_dir=logs/train/multiruns/<time>        # every run below (one per experiment / seed)
     python eval.py run_dir=... data=paper trainer=gpu          # another data preset or accelerator
+    python eval.py run_dir=<paper N=10 run> cls_fuse=[<contact cloud run>]   # two classifiers' answers combined
 
 Each checkpoint is rebuilt from its run's ``.hydra/config.yaml`` (model and, unless ``data=`` is given, data), then
 tested with 2, 5 and 10 touches (reconstruction: plus the no-touch "Visual" mode of a fusion model, and the
@@ -26,6 +27,12 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf, open_dict  # noqa: E402
 
+from tvrecon.report.fused_classifiers import (  # noqa: E402
+    TrainedClassifier,
+    fuse_data_config,
+    fuse_into,
+    load_trained_classifier,
+)
 from tvrecon.report.run import (  # noqa: E402
     check_model_matches_data,
     exit_on_sigterm,
@@ -108,6 +115,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         log.info(
             f"{cfg_path}: {len(moved)} _target_ of an earlier release rewritten, e.g. {moved[0][0]} -> {moved[0][1]}"
         )
+    members = fused_members(cfg, str(run_cfg.model._target_), ckpt)
+    trained_data = OmegaConf.create(OmegaConf.to_container(run_cfg.data, resolve=False))  # before data= replaces it
     with open_dict(run_cfg):
         run_cfg.paths = OmegaConf.create(OmegaConf.to_container(cfg.paths, resolve=True))
         run_cfg.paths.output_dir = str(out_dir)
@@ -118,6 +127,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
             run_cfg.model.eval_touches = list(cfg.cls_touches)
             if cfg.get("cls_headings") is not None:
                 run_cfg.model.headings = int(cfg.cls_headings)
+            if members:
+                fuse_data_config(trained_data, run_cfg.data, members)
         else:
             run_cfg.model.eval_touches = list(cfg.eval_touches)
             run_cfg.model.export = bool(cfg.export)
@@ -134,6 +145,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
     model.load_state_dict(state["state_dict"])
+    if members:
+        fuse_into(model, members, str(cfg.get("cls_fuse_rule", "mean_log_prob")))
     if eval_split(cfg) == "val":
         # the validation split: for choosing evaluation settings without the test split (no paper tables)
         with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
@@ -159,9 +172,31 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         "checkpoint": str(ckpt),
         "data_protocol": data_protocol(run_cfg.data),
     }
+    if members:
+        result = {**result, "fused_with": [str(m.ckpt) for m in members], "fusion_rule": str(cfg.cls_fuse_rule)}
     if trainer.is_global_zero:
         save_results(result, out_dir)
     return result
+
+
+def fused_members(cfg: DictConfig, target: str, ckpt: Path) -> list[TrainedClassifier]:
+    """The classifiers ``cfg.cls_fuse`` names (run folders or checkpoints), rebuilt; [] when it names none.
+
+    Raises:
+        ValueError: ``cls_fuse`` with a reconstruction model, or a run folder holding several runs.
+    """
+    paths = [Path(str(p)) for p in (cfg.get("cls_fuse") or [])]
+    if not paths:
+        return []
+    if not target.endswith("ClassificationModule"):
+        raise ValueError(f"cls_fuse fuses classifiers, but {ckpt} holds {target}: drop cls_fuse for it")
+    members = []
+    for path in paths:
+        found = find_checkpoints(str(path), None) if path.is_file() else find_checkpoints(None, str(path), cfg.prefer)
+        if len(found) != 1:
+            raise ValueError(f"cls_fuse: {path} holds {len(found)} runs; name one run folder or checkpoint each")
+        members.append(load_trained_classifier(found[0], run_config_path(found[0])))
+    return members
 
 
 def _last_instead(ckpt: Path) -> Path | None:

@@ -98,6 +98,8 @@ class ContactCloudClassifier(nn.Module):
             pooled += 2 * trunk.fc.in_features
             trunk.fc = nn.Identity()
             self.trunk = trunk
+        #: whether the tactile images are read (else only their shape is checked; their size does not matter)
+        self.reads_images = self.trunk is not None
         self.head = nn.Sequential(*_block(pooled, 256), nn.Dropout(dropout), nn.Linear(256, num_classes))
 
     def forward(
