@@ -45,7 +45,8 @@ def test_a_classifier_fused_with_itself_scores_as_alone_and_another_is_combined(
     alone = _eval(tmp_path, "alone", [f"ckpt_path={a}"])
     itself = _eval(tmp_path, "itself", [f"ckpt_path={a}", f"cls_fuse=[{a}]"])
     assert itself["confusion"] == alone["confusion"] and itself["accuracy"] == alone["accuracy"]
-    assert itself["name"] == "classify + classify (mean_log_prob)" and itself["fused_with"] == [str(a)]
+    assert itself["name"] == "Late fusion (mean_log_prob, beyond the paper): Tactile classifier + Tactile classifier"
+    assert itself["fused_with"] == [str(a)]
     assert "2" in itself["accuracy_other"]  # the fusion is always tested with another object's touches too
     other = _eval(tmp_path, "ab", [f"ckpt_path={a}", f"cls_fuse=[{tmp_path / 'b'}]", "cls_fuse_rule=mean_prob"])
     assert other["fused_with"] == [str(b)] and other["fusion_rule"] == "mean_prob"

@@ -22,6 +22,7 @@ from torch import nn
 
 from tvrecon.models.components.late_fusion import LateFusionClassifier
 from tvrecon.models.heading_ensemble import check_headings
+from tvrecon.report.table_format import PRETTY_NAMES
 from tvrecon.utils.checkpoint import load_checkpoint
 from tvrecon.utils.moved_targets import upgrade_targets
 
@@ -148,7 +149,8 @@ def fuse_into(module: nn.Module, members: Sequence[TrainedClassifier], rule: str
         rule: one of :data:`~tvrecon.models.components.late_fusion.FUSION_RULES`.
 
     Returns:
-        The fused result's name, e.g. ``"classify_paper_cpu_upsampled + classify_contact_cloud (mean_prob)"``.
+        The fused result's name (its Table 2 row), e.g. ``"Late fusion (mean_log_prob, beyond the paper): Tactile
+        classifier + Contact-cloud classifier"``.
 
     Raises:
         ValueError: no touch count the module tests is one every member can answer.
@@ -170,7 +172,9 @@ def fuse_into(module: nn.Module, members: Sequence[TrainedClassifier], rule: str
     module.eval_touches = sorted(touches)
     if "other" not in module.controls:
         module.controls = [*module.controls, "other"]
-    name = " + ".join([str(module.hparams.get("name", "classify")), *[m.name for m in members]]) + f" ({rule})"
+    names = [str(module.hparams.get("name", "classify")), *[m.name for m in members]]
+    labels = [PRETTY_NAMES.get(n, n).replace(" (beyond the paper)", "") for n in names]
+    name = f"Late fusion ({rule}, beyond the paper): " + " + ".join(labels)
     module.hparams.name = name
     log.info("fused %d classifiers (%s), tested at %s touches", len(members) + 1, rule, module.eval_touches)
     return name
