@@ -9,8 +9,10 @@ import pytest
 from tvrecon.report.cls_report import (
     build_per_class_table,
     confusion_by_touches,
+    file_stem,
     plot_accuracy_by_touches,
     plot_confusion,
+    plot_per_class,
     write_classification_plots,
     write_confusion_plots,
 )
@@ -101,6 +103,16 @@ def test_models_are_kept_apart(tmp_path: Path) -> None:
         "confusion_classify_10touch.png",
         "confusion_classify_touch_set_10touch.png",
     ]
+    # which classes each model loses: gear (50% for the touch set) is drawn, cube (100% for both) is not
+    bars = plot_per_class([*RUNS, other], tmp_path / "bars.png")
+    assert bars is not None and mpimg.imread(bars).shape[1] > 100
+    assert plot_per_class(RUNS, tmp_path / "one.png") is None and not (tmp_path / "one.png").exists()
+    assert plot_per_class([*RUNS, other], tmp_path / "k1.png", touches=1) is None  # the touch set has no 1-touch run
+    names = [p.name for p in write_classification_plots([*RUNS, other], tmp_path / "all")]
+    assert names[-2:] == ["accuracy_by_touches.png", "per_class_by_model.png"]
+    fused = "Late fusion (mean_log_prob, beyond the paper): Tactile classifier + Contact-cloud classifier"
+    assert file_stem(fused) == "Late_fusion_mean_log_prob_beyond_the_paper_Tactile_classifier_Contact-cloud_classifier"
+    assert file_stem("classify_contact_cloud@8headings") == "classify_contact_cloud_8headings"
 
 
 def test_tables_and_report_include_the_per_class_table(tmp_path: Path) -> None:

@@ -8,8 +8,9 @@ over the runs (seeds) of each k:
 - :func:`plot_confusion`: a row-normalised confusion matrix as a PNG (the rows are true classes, so the diagonal is
   the per-class accuracy);
 - :func:`write_confusion_plots`: the fewest and the most touches evaluated, ``confusion_<k>touch.png``;
-- :func:`plot_accuracy_by_touches`: Table 2 as curves, ``accuracy_by_touches.png`` (both written by
-  :func:`write_classification_plots`).
+- :func:`plot_accuracy_by_touches`: Table 2 as curves, ``accuracy_by_touches.png``;
+- :func:`plot_per_class`: with several models, which classes each loses, ``per_class_by_model.png`` (all three written
+  by :func:`write_classification_plots`).
 
 :func:`build_table2` is Table 2 itself: accuracy by touch count, one row per model (and one per control it ran).
 
@@ -19,6 +20,7 @@ file names carry the model's name.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,8 +34,10 @@ __all__ = [
     "build_per_class_table",
     "build_table2",
     "confusion_by_touches",
+    "file_stem",
     "plot_accuracy_by_touches",
     "plot_confusion",
+    "plot_per_class",
     "write_classification_plots",
     "write_confusion_plots",
 ]
@@ -160,6 +164,60 @@ def plot_confusion(counts: np.ndarray, names: Sequence[str], path: str | Path, t
     return save_and_close(fig, path, dpi=110)
 
 
+def file_stem(name: str) -> str:
+    """A model key as a file-name part: letters, digits, ``-`` and ``_`` only (a fused model's name has spaces)."""
+    return re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_-]", "_", name)).strip("_") or "model"
+
+
+def plot_per_class(results: Iterable[Mapping[str, Any]], path: str | Path, touches: int | None = None) -> Path | None:
+    """Which classes each model loses: per-class accuracy (%) with k touches, one bar per model (mean over its runs).
+
+    Only the classes some model gets below 100% are drawn, the worst first (by the lowest model's accuracy).
+
+    Args:
+        results: classification results of two or more models (runs of one model are averaged).
+        path: output ``.png``.
+        touches: k; None = the most touches every model was tested with.
+
+    Returns:
+        The path, or None with fewer than two models, no touch count they share, or no class below 100%.
+    """
+    from tvrecon.report.viz import plt
+    from tvrecon.utils.atomic import save_and_close
+
+    groups = _by_model(results)
+    if len(groups) < 2:
+        return None
+    shared = set.intersection(*[{int(k) for r in runs for k in r.get("per_class", {})} for runs in groups.values()])
+    k = touches if touches is not None else (max(shared) if shared else None)
+    if k is None or k not in shared:
+        return None
+    acc: dict[str, dict[str, float]] = {}  # model -> class -> mean accuracy (%)
+    for name, runs in groups.items():
+        per_run = [r["per_class"][str(k)] for r in runs if str(k) in r.get("per_class", {})]
+        classes = {c for pc in per_run for c in pc}
+        acc[name] = {c: float(np.mean([100.0 * pc[c] for pc in per_run if c in pc])) for c in classes}
+    classes = sorted({c for a in acc.values() for c in a}, key=lambda c: min(a.get(c, 100.0) for a in acc.values()))
+    classes = [c for c in classes if min(a.get(c, 100.0) for a in acc.values()) < 100.0]
+    if not classes:
+        return None
+    M = len(acc)
+    width = 0.8 / M
+    fig, ax = plt.subplots(figsize=(2.5 + 0.45 * len(classes) * max(1.0, M / 3), 4.0))
+    x = np.arange(len(classes))
+    for i, (name, a) in enumerate(acc.items()):
+        runs = len(groups[name])
+        label = f"{model_label(name)} ({runs} run{'s' * (runs > 1)})"
+        ax.bar(x + (i - (M - 1) / 2) * width, [a.get(c, np.nan) for c in classes], width, label=label, color=f"C{i}")
+    ax.set_xticks(x, classes, rotation=60, ha="right", fontsize=8)
+    ax.set_ylabel(f"test accuracy with {k} touch{'es' * (k > 1)} (%)")
+    ax.set_ylim(0, 105)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title(f"Classes some model gets wrong with {k} touches (the others: 100% for every model)", fontsize=9)
+    return save_and_close(fig, path, dpi=110)
+
+
 def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
     """``confusion_<k>touch.png`` in ``out_dir`` for the fewest and the most touches evaluated (summed over runs);
     ``confusion_<model>_<k>touch.png`` when the results hold several models."""
@@ -167,7 +225,7 @@ def write_confusion_plots(results: Iterable[Mapping[str, Any]], out_dir: str | P
     paths = []
     for name, runs in groups.items():
         by_k = confusion_by_touches(runs)
-        stem = f"confusion_{name.replace('@', '_')}_" if len(groups) > 1 else "confusion_"
+        stem = f"confusion_{file_stem(name)}_" if len(groups) > 1 else "confusion_"
         for k in sorted({min(by_k), max(by_k)}):
             counts, names, n = by_k[k]
             title = f"{model_label(name)}: {k} touch{'es' if k > 1 else ''}, {n} run{'s' if n > 1 else ''}"
@@ -217,12 +275,14 @@ def plot_accuracy_by_touches(results: Iterable[Mapping[str, Any]], path: str | P
 
 
 def write_classification_plots(results: Iterable[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
-    """The confusion matrices (:func:`write_confusion_plots`) and ``accuracy_by_touches.png``
-    (:func:`plot_accuracy_by_touches`) in ``out_dir``."""
+    """The confusion matrices (:func:`write_confusion_plots`), ``accuracy_by_touches.png``
+    (:func:`plot_accuracy_by_touches`) and, with several models, ``per_class_by_model.png`` (:func:`plot_per_class`)
+    in ``out_dir``."""
     results = list(results)
     paths = write_confusion_plots(results, out_dir)
     curve = plot_accuracy_by_touches(results, Path(out_dir) / "accuracy_by_touches.png")
-    return paths + ([curve] if curve is not None else [])
+    bars = plot_per_class(results, Path(out_dir) / "per_class_by_model.png")  # several models only
+    return paths + [p for p in (curve, bars) if p is not None]
 
 
 def build_table2(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = CLS_TOUCHES) -> Table:
