@@ -213,7 +213,7 @@ def plot_per_class(results: Iterable[Mapping[str, Any]], path: str | Path, touch
     ax.set_ylabel(f"test accuracy with {k} touch{'es' * (k > 1)} (%)")
     ax.set_ylim(0, 105)
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: no bar hidden
     ax.set_title(f"Classes some model gets wrong with {k} touches (the others: 100% for every model)", fontsize=9)
     return save_and_close(fig, path, dpi=110)
 
