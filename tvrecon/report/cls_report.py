@@ -193,10 +193,12 @@ def plot_per_class(results: Iterable[Mapping[str, Any]], path: str | Path, touch
     if k is None or k not in shared:
         return None
     acc: dict[str, dict[str, float]] = {}  # model -> class -> mean accuracy (%)
+    counted: dict[str, int] = {}  # model -> runs tested with k touches
     for name, runs in groups.items():
         per_run = [r["per_class"][str(k)] for r in runs if str(k) in r.get("per_class", {})]
         classes = {c for pc in per_run for c in pc}
         acc[name] = {c: float(np.mean([100.0 * pc[c] for pc in per_run if c in pc])) for c in classes}
+        counted[name] = len(per_run)
     classes = sorted({c for a in acc.values() for c in a}, key=lambda c: min(a.get(c, 100.0) for a in acc.values()))
     classes = [c for c in classes if min(a.get(c, 100.0) for a in acc.values()) < 100.0]
     if not classes:
@@ -206,7 +208,7 @@ def plot_per_class(results: Iterable[Mapping[str, Any]], path: str | Path, touch
     fig, ax = plt.subplots(figsize=(2.5 + 0.45 * len(classes) * max(1.0, M / 3), 4.0))
     x = np.arange(len(classes))
     for i, (name, a) in enumerate(acc.items()):
-        runs = len(groups[name])
+        runs = counted[name]
         label = f"{model_label(name)} ({runs} run{'s' * (runs > 1)})"
         ax.bar(x + (i - (M - 1) / 2) * width, [a.get(c, np.nan) for c in classes], width, label=label, color=f"C{i}")
     ax.set_xticks(x, classes, rotation=60, ha="right", fontsize=8)
