@@ -145,8 +145,9 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
     model.load_state_dict(state["state_dict"])
+    rule = str(cfg.get("cls_fuse_rule", "mean_log_prob"))
     if members:
-        fuse_into(model, members, str(cfg.get("cls_fuse_rule", "mean_log_prob")))
+        fuse_into(model, members, rule)
     if eval_split(cfg) == "val":
         # the validation split: for choosing evaluation settings without the test split (no paper tables)
         with exit_on_sigterm(trainer, f"evaluation of {ckpt}", "nothing was written for it: run eval.py again"):
@@ -173,7 +174,7 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         "data_protocol": data_protocol(run_cfg.data),
     }
     if members:
-        result = {**result, "fused_with": [str(m.ckpt) for m in members], "fusion_rule": str(cfg.cls_fuse_rule)}
+        result = {**result, "fused_with": [str(m.ckpt) for m in members], "fusion_rule": rule}
     if trainer.is_global_zero:
         save_results(result, out_dir)
     return result
