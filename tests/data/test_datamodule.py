@@ -69,6 +69,29 @@ def test_cls_paper_cpu_has_table1_sizes_and_many_objects_per_class():
     assert not per_class["train"] & per_class["test"] and not per_class["train"] & per_class["val"]
 
 
+def test_paper_cpu_has_table1_reconstruction_sizes():
+    """The CPU reconstruction preset at Table 1's size (issue 24): train on all 35 classes (650 views, 6,500 tactile
+    images), test on the 10 reconstruction classes (50 / 500), small's pad, grid and views, the paper's touches; the
+    checkpoint is chosen on validation objects of the 10 test classes, none shared with train or test."""
+    cfg = compose_preset("paper_cpu", ["cache_dir=null"])
+    sizes = split_sizes(cfg)
+    assert sizes["train"] == TABLE1["reconstruction"]["train"] == SplitSize(35, 6500, 650)
+    assert sizes["test"] == TABLE1["reconstruction"]["test"] == SplitSize(10, 500, 50)
+    assert sizes["val"] == SplitSize(10, 200, 20)
+    small = compose_preset("small", ["cache_dir=null"])
+    for block in ("sensor", "press", "touch", "render"):  # small's geometry, only the split sizes differ
+        assert cfg[block] == small[block], block
+    assert cfg.tactile_size == small.tactile_size and cfg.touch._target_.endswith("PaperSweepTouchPolicy")
+    dm = instantiate(cfg, _convert_="all")
+    seen = {}
+    for split in ("train", "val", "test"):
+        ds = dm.make_dataset(split)
+        objects = [ds.object_of(i) for i in range(len(ds))]
+        seen[split] = {(c, ds.library.params(c, k, split)["seed"]) for c, k in objects}
+    assert len({c for c, _ in seen["train"]}) == 35 and len({c for c, _ in seen["test"]}) == 10
+    assert not seen["train"] & seen["test"] and not seen["train"] & seen["val"] and not seen["val"] & seen["test"]
+
+
 def test_reconstruction_batches_have_documented_shapes(tmp_path: Path):
     dm = _dm("tiny", tmp_path, RECON_FAST)
     dm.setup("fit")

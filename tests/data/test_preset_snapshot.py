@@ -6,7 +6,9 @@ composes it (``data=<preset>`` in ``configs/train.yaml``) and as ``python -m tvr
 presets were split into config groups (issue 16 item 6), so the composed presets are proven to give the same values.
 The one intended difference is ``touch._target_``, added when touch policies became pluggable (issue 16 item 5): it
 names the default policy, whose cache key it does not enter. Presets added later (``cls_paper_cpu``, issue 12) were
-written into the fixture the same way, without ``touch._target_``, and their other presets' entries left untouched.
+written into the fixture the same way, without ``touch._target_``, and their other presets' entries left untouched
+(``paper_cpu``, issue 24: Table 1's reconstruction sizes on ``small``'s geometry, likewise without ``press.compile``
+and ``device_tactile_size``).
 The fixture was rewritten on purpose when the presets moved to the paper's touches (issue 24: ``touch/paper_sweep``,
 the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon-data-5``). ``press.collider_refine: 2``
 was then added to ``press/eip_cpu`` (the object's table at the authors' spacing, so that thin parts are felt on the 64
@@ -46,7 +48,17 @@ CONFIGS = ROOT / "configs"
 FIXTURES = Path(__file__).parent / "fixtures"
 PRESETS_FIXTURE = FIXTURES / "data_presets.json"
 KEYS_FIXTURE = FIXTURES / "data_cache_keys.json"
-PRESETS = ["cls_paper", "cls_paper_cpu", "cls_small", "cls_sweep_cpu", "cls_tiny", "paper", "small", "tiny"]
+PRESETS = [
+    "cls_paper",
+    "cls_paper_cpu",
+    "cls_small",
+    "cls_sweep_cpu",
+    "cls_tiny",
+    "paper",
+    "paper_cpu",
+    "small",
+    "tiny",
+]
 EXPERIMENTS = sorted(p.stem for p in (CONFIGS / "experiment").glob("*.yaml"))
 
 

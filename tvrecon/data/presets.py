@@ -16,6 +16,9 @@ Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
   64 x 64 sensor pad on a 128^3 grid.
 - ``small``: a CPU-sized version (10 reconstruction classes, lower sensor and image resolution) that generates in
   about 10 to 20 minutes and trains in about an hour on 2 cores.
+- ``paper_cpu``: the reconstruction split sizes of Table 1 (train all 35 classes, 650 views / 6,500 tactile images;
+  test the 10 reconstruction classes, 50 / 500) on ``small``'s pad, grid and views, for Table 3 at the paper's
+  data size on 2 CPU cores (about 8 minutes to generate).
 - ``cls_paper_cpu``: the classification split sizes of Table 1 (5,500 / 1,500 images, plus 700 validation) with a
   32 x 32 pad on a 64^3 grid (the paper's touch geometry at half its resolution) and 32 px tactile maps, so that
   2 CPU cores generate it in about 15 minutes (``configs/data/cls_paper_cpu.yaml`` says why each value was chosen,
