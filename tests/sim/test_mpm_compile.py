@@ -14,6 +14,7 @@ from test_mpm import make_pad
 from tvrecon.sim.bodies.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
 from tvrecon.sim.mpm.compiled import backend
+from tvrecon.sim.mpm.compiled import step as compiled_step
 from tvrecon.sim.mpm.compiled.kernels import node_sums, polar_fixed
 from tvrecon.sim.mpm.grid import shift_nodes
 
@@ -83,6 +84,10 @@ def test_compile_failure_falls_back_to_eager(monkeypatch):
 
     monkeypatch.setattr(backend, "_KERNELS", backend.CompiledKernels())
     monkeypatch.setattr(backend._KERNELS, "_fns", {k: boom for k in backend._KERNELS._fns})
+    # without a compiler the one-thread C++ loops are not built either: the step must reach the compiled kernels
+    # (otherwise, on one thread, every part of it runs in those loops and nothing fails)
+    for name in [n for n in vars(compiled_step) if n.endswith("_available")]:
+        monkeypatch.setattr(compiled_step, name, lambda *args: False)
     cfg = MPMConfig(n_grid=32)
     comp = MLSMPM(cfg, compile=True)
     assert comp.compiled
