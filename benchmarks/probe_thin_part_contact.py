@@ -81,7 +81,7 @@ def main(argv: list[str]) -> None:
     cls, instance = ds.object_of(ITEM)
     mesh = ds.mesh(ITEM)
     touches = sample_touches(mesh, ds.touches_per_item, seed=ds.seeds(ITEM)[0], policy=ds.touch, sim=ds.simulator)
-    one = Touches(touches.positions[:1], touches.directions[:1], touches.normals[:1], [touches.strengths[0]])
+    one = touches.take(0)
     direction = [round(float(v), 3) for v in one.directions[0]]
     print(f"cls_paper shared_base val item {ITEM} ({cls}, instance {instance}), touch 0, direction {direction}")
     for change in [parse(argv)] if argv else DEFAULT_VARIANTS:

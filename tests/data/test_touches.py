@@ -89,6 +89,17 @@ def _first_hit_is_point(mesh: trimesh.Trimesh, center: np.ndarray, p: np.ndarray
     return bool(np.linalg.norm(first - p) < 1e-4)
 
 
+def test_take_is_one_touch_of_the_batch(torus: trimesh.Trimesh) -> None:
+    t = sample_touches(torus, 5, seed=3, policy=ConeTouchPolicy())
+    for i in (0, 3, -1):
+        one = t.take(i)
+        assert one.positions.shape == one.directions.shape == one.normals.shape == (1, 3)
+        assert torch.equal(one.positions[0], t.positions[i]) and torch.equal(one.directions[0], t.directions[i])
+        assert torch.equal(one.normals[0], t.normals[i]) and one.strengths == [t.strengths[i]]
+    with pytest.raises(IndexError, match="touch 5 of 5"):
+        t.take(5)
+
+
 def test_visible_only(torus: trimesh.Trimesh) -> None:
     cam = sample_camera(4, image_size=64)
     center = cam.center.double().numpy()

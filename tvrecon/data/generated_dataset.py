@@ -271,12 +271,7 @@ class GeneratedDataset(Dataset):
         dt = p.dt if p.dt is not None else float(cfl_dt(MPMConfig(n_grid=int(p.n_grid), E=s.E, nu=s.nu, rho=s.rho)))
         out = []
         for t in range(len(touches.strengths)):
-            one = Touches(
-                touches.positions[t : t + 1],
-                touches.directions[t : t + 1],
-                touches.normals[t : t + 1],
-                [touches.strengths[t]],
-            )
+            one = touches.take(t)
             tries = [{}] + [{"dt": dt / 2**k} for k in range(1, halvings + 1)]
             if p.contact != "grid":
                 tries.append({"contact": "grid"})  # the last resort: the node contact, at the preset's step

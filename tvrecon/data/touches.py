@@ -70,6 +70,15 @@ class Touches(NamedTuple):
     normals: Tensor
     strengths: list[dict]
 
+    def take(self, t: int) -> Touches:
+        """Touch ``t`` alone, as a batch of one ((1, 3) tensors, one strength)."""
+        if not -len(self.strengths) <= t < len(self.strengths):
+            raise IndexError(f"touch {t} of {len(self.strengths)}")
+        t = t % len(self.strengths)
+        return Touches(
+            self.positions[t : t + 1], self.directions[t : t + 1], self.normals[t : t + 1], [self.strengths[t]]
+        )
+
 
 class TouchPolicy:
     """Where, in which direction and how hard to press: the interface of the touch policies.
