@@ -42,9 +42,8 @@ from tvrecon.report.run import (  # noqa: E402
 )
 from tvrecon.report.table_format import Table  # noqa: E402
 from tvrecon.report.tables import data_protocol  # noqa: E402
-from tvrecon.utils.checkpoint import CorruptCheckpointError, load_checkpoint  # noqa: E402
+from tvrecon.utils.checkpoint import CorruptCheckpointError, load_run  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
-from tvrecon.utils.moved_targets import upgrade_targets  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -52,11 +51,6 @@ TRAIN_HINT = (
     "train one first with `python train.py experiment=smoke` (or experiment=<name>); checkpoints are written to "
     "logs/train/runs/<time>/checkpoints/ and sweeps to logs/train/multiruns/<time>/<num>_<experiment>/checkpoints/"
 )
-
-
-def run_config_path(ckpt: Path) -> Path:
-    """The config of the run that wrote ``ckpt``: ``<run>/checkpoints/x.ckpt`` -> ``<run>/.hydra/config.yaml``."""
-    return ckpt.resolve().parent.parent / ".hydra" / "config.yaml"
 
 
 def pick_checkpoint(ckpt_dir: Path, prefer: str = "best") -> Path | None:
@@ -102,19 +96,9 @@ def find_checkpoints(ckpt_path: str | None, run_dir: str | None, prefer: str = "
 
 def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     """Test one checkpoint; returns its result dict (also written to ``<out_dir>/metrics.json``)."""
-    cfg_path = run_config_path(ckpt)
-    if not cfg_path.is_file():
-        raise FileNotFoundError(
-            f"{cfg_path} (the config of the run that wrote {ckpt}) does not exist: eval.py rebuilds the model from "
-            f"it, so evaluate checkpoints inside their train.py run folder"
-        )
-    state = load_checkpoint(ckpt)  # plain tensors and hparams only; a corrupt file is named before any work
-    run_cfg = OmegaConf.load(cfg_path)
-    moved = upgrade_targets(run_cfg)  # a run of an earlier layout names modules that have moved since
-    if moved:
-        log.info(
-            f"{cfg_path}: {len(moved)} _target_ of an earlier release rewritten, e.g. {moved[0][0]} -> {moved[0][1]}"
-        )
+    state, run_cfg = load_run(
+        ckpt, "eval.py", "it rebuilds the model from it, so evaluate checkpoints inside their train.py run folder"
+    )
     members = fused_members(cfg, str(run_cfg.model._target_), ckpt)
     trained_data = OmegaConf.create(OmegaConf.to_container(run_cfg.data, resolve=False))  # before data= replaces it
     with open_dict(run_cfg):
@@ -196,7 +180,7 @@ def fused_members(cfg: DictConfig, target: str, ckpt: Path) -> list[TrainedClass
         found = find_checkpoints(str(path), None) if path.is_file() else find_checkpoints(None, str(path), cfg.prefer)
         if len(found) != 1:
             raise ValueError(f"cls_fuse: {path} holds {len(found)} runs; name one run folder or checkpoint each")
-        members.append(load_trained_classifier(found[0], run_config_path(found[0])))
+        members.append(load_trained_classifier(found[0]))
     return members
 
 

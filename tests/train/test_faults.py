@@ -11,7 +11,7 @@ import torch
 from conftest import compose_config
 from omegaconf import OmegaConf, open_dict
 
-from tvrecon.utils.checkpoint import CorruptCheckpointError, check_checkpoint
+from tvrecon.utils.checkpoint import CorruptCheckpointError, check_checkpoint, load_run
 
 
 def _synthetic_cfg(overrides: list[str], out: Path):
@@ -53,6 +53,30 @@ def test_check_checkpoint_names_truncated_and_damaged_files(tmp_path: Path) -> N
     (tmp_path / "d.ckpt").write_bytes(bytes(damaged))
     with pytest.raises(CorruptCheckpointError, match=r"d\.ckpt .*CRC"):
         check_checkpoint(tmp_path / "d.ckpt")
+
+
+def test_load_run_checks_the_config_the_file_and_upgrades_moved_targets(tmp_path: Path, caplog) -> None:
+    ckpt = tmp_path / "lone" / "checkpoints" / "last.ckpt"
+    ckpt.parent.mkdir(parents=True)
+    torch.save({"state_dict": {}}, ckpt)
+    missing = r"who: .*lone/\.hydra/config\.yaml \(the config .*\) does not exist: do this"
+    with pytest.raises(FileNotFoundError, match=missing):
+        load_run(ckpt, "who", "do this")
+    ckpt = _fake_run(tmp_path / "run")
+    cfg = OmegaConf.load(ckpt.parent.parent / ".hydra" / "config.yaml")
+    old = "tvrecon.models.fusion.TactileVisualFusion"  # the module's path before it moved
+    cfg.model.net.fusion = {"_target_": old}
+    OmegaConf.save(cfg, ckpt.parent.parent / ".hydra" / "config.yaml")
+    with caplog.at_level(logging.INFO, logger="tvrecon.utils.checkpoint"):
+        state, run_cfg = load_run(ckpt, "who", "do this")
+    saved = torch.load(ckpt, weights_only=True)["state_dict"]
+    assert state["state_dict"].keys() == saved.keys() and len(saved) > 0
+    assert run_cfg.model.net.fusion._target_ == "tvrecon.models.components.fusion.TactileVisualFusion"
+    assert "1 _target_ of an earlier release rewritten" in caplog.text
+    data = ckpt.read_bytes()
+    ckpt.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CorruptCheckpointError, match=r"last\.ckpt is truncated or corrupt"):
+        load_run(ckpt, "who", "do this")
 
 
 def test_eval_sweep_skips_a_corrupt_checkpoint_and_prints_the_other_tables(

@@ -23,8 +23,7 @@ from torch import nn
 from tvrecon.models.components.late_fusion import LateFusionClassifier
 from tvrecon.models.heading_ensemble import check_headings
 from tvrecon.report.table_format import PRETTY_NAMES
-from tvrecon.utils.checkpoint import load_checkpoint
-from tvrecon.utils.moved_targets import upgrade_targets
+from tvrecon.utils.checkpoint import load_run
 
 __all__ = ["TrainedClassifier", "data_mismatch", "fuse_data_config", "fuse_into", "load_trained_classifier"]
 
@@ -56,22 +55,15 @@ class TrainedClassifier:
     name: str
 
 
-def load_trained_classifier(ckpt: Path, config_path: Path) -> TrainedClassifier:
-    """Rebuild the classifier of ``ckpt`` from its run's config (``config_path``) and load its weights.
+def load_trained_classifier(ckpt: Path) -> TrainedClassifier:
+    """Rebuild the classifier of ``ckpt`` from its run's config (``<run>/.hydra/config.yaml``) and load its weights.
 
     Raises:
-        FileNotFoundError: ``config_path`` does not exist.
+        FileNotFoundError: the run's config does not exist.
         CorruptCheckpointError: the checkpoint cannot be read (names the file).
         ValueError: the run is not a classifier.
     """
-    if not config_path.is_file():
-        raise FileNotFoundError(
-            f"cls_fuse: {config_path} (the config of the run that wrote {ckpt}) does not exist: name a checkpoint "
-            f"inside its train.py run folder"
-        )
-    state = load_checkpoint(ckpt)
-    run_cfg = OmegaConf.load(config_path)
-    upgrade_targets(run_cfg)
+    state, run_cfg = load_run(ckpt, "cls_fuse", "name a checkpoint inside its train.py run folder")
     target = str(run_cfg.model.get("_target_", ""))
     if not target.endswith("ClassificationModule"):
         raise ValueError(f"cls_fuse: {ckpt} holds {target or 'no model'}, not a classifier: only classifiers fuse")

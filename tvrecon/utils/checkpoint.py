@@ -7,13 +7,19 @@ with a CRC per member, so :func:`check_checkpoint` verifies the archive (reads i
 
 from __future__ import annotations
 
+import logging
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import torch
+from omegaconf import DictConfig, OmegaConf
 
-__all__ = ["CorruptCheckpointError", "check_checkpoint", "load_checkpoint"]
+from tvrecon.utils.moved_targets import upgrade_targets
+
+__all__ = ["CorruptCheckpointError", "check_checkpoint", "load_checkpoint", "load_run", "run_config_path"]
+
+log = logging.getLogger(__name__)
 
 
 class CorruptCheckpointError(ValueError):
@@ -67,3 +73,36 @@ def load_checkpoint(path: str | Path, weights_only: bool = True) -> dict[str, An
     if not isinstance(state, dict) or "state_dict" not in state:
         raise CorruptCheckpointError(path, "no 'state_dict' in it: not a Lightning checkpoint")
     return state
+
+
+def run_config_path(ckpt: str | Path) -> Path:
+    """The config of the run that wrote ``ckpt``: ``<run>/checkpoints/x.ckpt`` -> ``<run>/.hydra/config.yaml``."""
+    return Path(ckpt).resolve().parent.parent / ".hydra" / "config.yaml"
+
+
+def load_run(ckpt: str | Path, who: str, hint: str) -> tuple[dict[str, Any], DictConfig]:
+    """A trained run's checkpoint and config: its state (checked, on the CPU) and its ``.hydra/config.yaml`` with
+    the ``_target_`` of modules that have moved since rewritten (:func:`~tvrecon.utils.moved_targets.upgrade_targets`).
+
+    Args:
+        ckpt: a checkpoint inside its ``train.py`` run folder.
+        who: what is loading it, the start of every message (``eval.py``, ``cls_fuse``).
+        hint: what to do when the run's config is missing.
+
+    Raises:
+        FileNotFoundError: the run's config does not exist (names it and ``ckpt``).
+        CorruptCheckpointError: the checkpoint cannot be read (names the file).
+    """
+    cfg_path = run_config_path(ckpt)
+    if not cfg_path.is_file():
+        raise FileNotFoundError(f"{who}: {cfg_path} (the config of the run that wrote {ckpt}) does not exist: {hint}")
+    state = load_checkpoint(ckpt)  # plain tensors and hparams only; a corrupt file is named before any work
+    run_cfg = OmegaConf.load(cfg_path)
+    if not isinstance(run_cfg, DictConfig):
+        raise ValueError(f"{who}: {cfg_path} is not a mapping (a train.py run config is)")
+    moved = upgrade_targets(run_cfg)  # a run of an earlier layout names modules that have moved since
+    if moved:
+        log.info(
+            f"{cfg_path}: {len(moved)} _target_ of an earlier release rewritten, e.g. {moved[0][0]} -> {moved[0][1]}"
+        )
+    return state, run_cfg
