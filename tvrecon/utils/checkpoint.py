@@ -3,6 +3,8 @@
 torch's own error for a truncated checkpoint ("failed finding central directory") does not name the file, and a
 checkpoint whose middle was damaged can even load with wrong weights. Lightning/torch checkpoints are zip archives
 with a CRC per member, so :func:`check_checkpoint` verifies the archive (reads it once, no unpickling).
+:func:`load_run` is what ``eval.py`` and ``cls_fuse`` read a trained run with: the checked checkpoint and the run's
+config, its moved ``_target_`` paths rewritten.
 """
 
 from __future__ import annotations
