@@ -5,6 +5,7 @@
     python train.py -m 'experiment=glob(*,exclude=[smoke,classify])' data=paper trainer=gpu   # all ablations
     python train.py experiment=full ckpt_path=logs/train/runs/<time>/checkpoints/last.ckpt   # resume
     python train.py hparams_search=lr_wd                              # grid search with the basic sweeper
+    python train.py experiment=touch_cascade init_from=<visual run>/checkpoints/last.ckpt 'freeze=[net.visual]'
 
 Every run writes to its hydra folder (``logs/train/runs/<time>`` or ``.../multiruns/<time>/<num>_<experiment>``):
 ``checkpoints/`` (best by ``val/chamfer`` and last), ``csv/metrics.csv``, ``tensorboard/``, ``renders/`` (predicted
@@ -28,6 +29,7 @@ import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
+from tvrecon.models.warm_start import FreezeParameters, load_initial_weights  # noqa: E402
 from tvrecon.report.run import (  # noqa: E402  (also importable from train)
     check_model_matches_data,
     exit_on_sigterm,
@@ -160,7 +162,15 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
     log.info("Instantiating model <%s>", cfg.model._target_)
     model: L.LightningModule = hydra.utils.instantiate(cfg.model)
+    if cfg.get("init_from") is not None:
+        if ckpt_path is not None:
+            log.warning(
+                "ckpt_path=%s resumes the run: its weights replace those of init_from=%s", ckpt_path, cfg.init_from
+            )
+        load_initial_weights(model, cfg.init_from)
     callbacks = instantiate_callbacks(cfg.get("callbacks"))
+    if cfg.get("freeze"):
+        callbacks.append(FreezeParameters(list(cfg.freeze)))
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
     for lg in trainer.loggers:

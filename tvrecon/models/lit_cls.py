@@ -292,4 +292,5 @@ class ClassificationModule(L.LightningModule):
             self.test_results["accuracy_other"] = accuracy_other
 
     def configure_optimizers(self) -> Any:
-        return configure_optimizers(self.trainer.model.parameters(), self.optimizer_factory, self.scheduler_factory)
+        trainable = [p for p in self.trainer.model.parameters() if p.requires_grad]  # freeze= leaves some out
+        return configure_optimizers(trainable, self.optimizer_factory, self.scheduler_factory)

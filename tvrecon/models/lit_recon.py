@@ -292,6 +292,6 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         params = (
             lr_scaled_groups(self.named_parameters(), self.optimizer_factory, scales)
             if scales
-            else self.trainer.model.parameters()
+            else [p for p in self.trainer.model.parameters() if p.requires_grad]  # freeze= leaves some out
         )
         return configure_optimizers(params, self.optimizer_factory, self.scheduler_factory)
