@@ -7,8 +7,8 @@ B = 8 views of 128 px, T = 10 touches of 64 px maps, plus contact patches of 31 
 
 * visual only (Pixel2Mesh alone),
 * ``touch_cascade`` trained jointly (both paths learn; the touch path reads the visual one detached),
-* ``touch_cascade`` with ``net.visual`` and ``net.deformer.stages`` frozen the way ``FreezeParameters`` does it
-  (no gradient, eval mode, only trainable parameters in the optimizer),
+* ``touch_cascade`` with ``net.visual`` and ``net.deformer.stages`` frozen by ``FreezeParameters``, the callback of
+  ``freeze=`` (no gradient, eval mode; AdamW skips the parameters without a gradient),
 
 and prints the ratios, the share of parameters trained, and checks that a step with a non-zero learning rate leaves
 every frozen entry (weights and BatchNorm statistics) as it was.
@@ -20,18 +20,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_train_step import build_module, synthetic_batch, train_step  # noqa: E402
-from lightning.pytorch.callbacks import BaseFinetuning  # noqa: E402
+from bench_train_step import build_module, synthetic_batch, time_steps, train_step  # noqa: E402
 
 from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
-from tvrecon.models.warm_start import modules_under  # noqa: E402
+from tvrecon.models.warm_start import FreezeParameters  # noqa: E402
 
 FROZEN = ("net.visual", "net.deformer.stages")
 
@@ -52,33 +50,21 @@ def with_patches(batch: dict, q: int = 31 * 31, seed: int = 1) -> dict:
     }
 
 
-def freeze(module: ReconstructionModule, prefixes: tuple[str, ...] = FROZEN) -> list[torch.nn.Module]:
-    """Fix the modules under ``prefixes`` as ``FreezeParameters`` does (no gradient, eval mode)."""
-    frozen = modules_under(module, prefixes)
-    BaseFinetuning.freeze(frozen, train_bn=False)
-    return frozen
-
-
-def time_variant(module: ReconstructionModule, batch: dict, repeats: int) -> list[float]:
-    """A warm-up step, then ``repeats`` timed steps at learning rate 0 (every step sees the same weights)."""
-    opt = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=0.0)
-    train_step(module, opt, batch)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        train_step(module, opt, batch)
-        times.append(time.perf_counter() - t0)
-    return times
+def freeze(module: ReconstructionModule, prefixes: tuple[str, ...] = FROZEN) -> FreezeParameters:
+    """Fix the modules under ``prefixes`` with train.py's own ``freeze=`` callback, as at the start of a fit and of
+    every training batch (no gradient, eval mode)."""
+    module.train()
+    callback = FreezeParameters(prefixes)
+    callback.freeze_before_training(module)
+    callback.on_train_batch_start(None, module, None, 0)
+    return callback
 
 
 def frozen_entries_unchanged(module: ReconstructionModule, batch: dict) -> bool:
     """One step at lr 1e-3 in train mode with the frozen parts put back in eval: are their entries untouched?"""
-    frozen = freeze(module)
+    freeze(module)
     names = [n for n in module.state_dict() if n.startswith(FROZEN)]
     before = {n: module.state_dict()[n].clone() for n in names}
-    module.train()
-    for m in frozen:
-        m.eval()  # FreezeParameters.on_train_batch_start
     opt = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
     train_step(module, opt, batch)
     after = module.state_dict()
@@ -100,15 +86,11 @@ def main() -> None:
     joint = build_module("touch_cascade")
     fixed = build_module("touch_cascade")
     fixed.load_state_dict(joint.state_dict())
-    fixed.train()
-    for m in freeze(fixed):
-        m.eval()
+    freeze(fixed)
     trainable = sum(p.numel() for p in fixed.parameters() if p.requires_grad)
     total = sum(p.numel() for p in fixed.parameters())
 
-    t_visual = min(time_variant(visual, batch, args.repeats))
-    t_joint = min(time_variant(joint, batch, args.repeats))
-    t_fixed = min(time_variant(fixed, batch, args.repeats))
+    t_visual, t_joint, t_fixed = (min(time_steps(m, batch, args.repeats)[0]) for m in (visual, joint, fixed))
     print(f"visual only:                 step {t_visual:.2f} s")
     print(f"touch_cascade, joint:        step {t_joint:.2f} s  ({t_joint / t_visual:.2f}x visual only)")
     print(
