@@ -282,6 +282,25 @@ def test_reconstruction_sample_exposes_contact_patches(recon_cache: Path):
     assert dist.max() * ds.press.n_grid / ds.press.domain_size < 1.0
 
 
+def test_patch_min_push_keeps_the_deeper_pushed_points_of_the_same_cache_entry(recon_cache: Path):
+    """A stricter contact test drops the pad's rim (points barely pushed in) from the patch, on load: the same cached
+    entry (no regeneration), the points' mask re-derived from the cached push depth, a subset of the default mask."""
+    base = recon(recon_cache)
+    a = base[1]
+    raw, _ = base.raw(1)
+    push = torch.from_numpy(raw["tactile"][: base.num_touches(1), 2]).flatten(1)  # (T, Hs*Ws) cells
+    threshold = float(push[push > 0.1].median())  # half of the default patch's points are pushed in deeper
+    strict = recon(recon_cache, patch_min_push=threshold)
+    assert cache_key(base.spec(1)) == cache_key(strict.spec(1)) and strict.is_cached(1)
+    b = strict[1]
+    assert torch.equal(a["patch_points"], b["patch_points"])
+    assert torch.equal(b["patch_mask"][: push.shape[0]], push > threshold)
+    assert not (b["patch_mask"] & ~a["patch_mask"]).any()  # a subset
+    assert 0 < b["patch_mask"].sum() < a["patch_mask"].sum()
+    with pytest.raises(ValueError, match="patch_min_push"):
+        recon(recon_cache, patch_min_push=float("nan"))
+
+
 def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
     """Issue 14 case 14: `sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
     from tvrecon.data.cache import cache_key

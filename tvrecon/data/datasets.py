@@ -82,7 +82,7 @@ class ReconstructionDataset(GeneratedDataset):
         (max_touches,Hs*Ws) bool: each touch's contact layer mapped back to 3D
         (:func:`tvrecon.sim.sensor.patch.contact_patch`, derived from the cached raw image, position and direction at
         the sensor's resolution Hs x Ws; no regeneration), the mask True where the pad was pushed in by more than
-        0.1 cell (False on padded touches).
+        ``patch_min_push`` cells (default 0.1; False on padded touches).
 
     Args (in addition to :class:`GeneratedDataset`):
         num_samples: number of samples (objects; one view each).
@@ -215,6 +215,7 @@ def _contact_patches(dataset: GeneratedDataset, raw: Mapping[str, np.ndarray], s
         dataset.sensor,
         int(dataset.press.n_grid),
         float(dataset.press.domain_size),
+        min_push=dataset.patch_min_push,
     )
 
 

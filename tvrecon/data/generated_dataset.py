@@ -42,6 +42,7 @@ from tvrecon.sim.mpm.state import MPMConfig, cfl_dt
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.simulator import EIPSimulator
 from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.patch import DEFAULT_MIN_PUSH
 from tvrecon.utils.config_utils import coerce_config
 
 __all__ = ["GeneratedDataset"]
@@ -81,6 +82,9 @@ class GeneratedDataset(Dataset):
         tactile_scale: divisor of the raw displacement (grid cells), see :mod:`tvrecon.data.datasets`.
         cache_dir: cache directory; ``None`` disables caching.
         sim_device: device of the simulator inside the workers (default: the simulator's default).
+        patch_min_push: the contact test of the touches' contact patches
+            (:func:`tvrecon.sim.sensor.patch.contact_patch`): a contact-layer point counts as touching where the pad
+            was pushed in by more than this many cells. Applied on load, not part of the cache key.
         memory_cache: also keep every entry read in this process's memory (one copy per dataloader worker), so each
             item is read from disk once: for small tactile-only sets trained for many epochs, where reading an
             entry (~20 ms) costs more than the training step it feeds (the 5,500-image classification set is ~70 MB).
@@ -105,6 +109,7 @@ class GeneratedDataset(Dataset):
         cache_dir: str | Path | None = None,
         sim_device: str | torch.device | None = None,
         memory_cache: bool = False,
+        patch_min_push: float = DEFAULT_MIN_PUSH,
     ) -> None:
         if int(num_items) < 1:
             raise ValueError(f"num_items must be >= 1, got {num_items}")
@@ -114,6 +119,8 @@ class GeneratedDataset(Dataset):
             raise ValueError(f"instance_offset must be >= 0, got {instance_offset}")
         if not float(tactile_scale) > 0:
             raise ValueError(f"tactile_scale must be > 0 (grid cells per unit), got {tactile_scale}")
+        if not 0 <= float(patch_min_push) < float("inf"):
+            raise ValueError(f"patch_min_push must be a finite number of cells >= 0, got {patch_min_push}")
         self.library = library if library is not None else ObjectLibrary()
         self.classes = list(classes) if classes is not None else list(self.library.classes)
         if not self.classes:
@@ -131,6 +138,7 @@ class GeneratedDataset(Dataset):
         self.touch = make_touch_policy(touch)
         self.tactile_size = _pair(tactile_size, "tactile_size")
         self.tactile_scale = float(tactile_scale)
+        self.patch_min_push = float(patch_min_push)
         self.cache = SampleCache(cache_dir)
         self.sim_device = sim_device
         self._simulator: EIPSimulator | None = None
