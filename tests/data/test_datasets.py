@@ -297,8 +297,12 @@ def test_patch_min_push_keeps_the_deeper_pushed_points_of_the_same_cache_entry(r
     assert torch.equal(b["patch_mask"][: push.shape[0]], push > threshold)
     assert not (b["patch_mask"] & ~a["patch_mask"]).any()  # a subset
     assert 0 < b["patch_mask"].sum() < a["patch_mask"].sum()
+    relative = recon(recon_cache, patch_min_push_fraction=0.5)[1]["patch_mask"][: push.shape[0]]
+    assert torch.equal(relative, push > (0.5 * push.amax(1, keepdim=True)).clamp_min(0.1))
     with pytest.raises(ValueError, match="patch_min_push"):
         recon(recon_cache, patch_min_push=float("nan"))
+    with pytest.raises(ValueError, match="patch_min_push_fraction"):
+        recon(recon_cache, patch_min_push_fraction=-0.1)
 
 
 def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:

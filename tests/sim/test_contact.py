@@ -103,3 +103,26 @@ def test_default_particle_contact_lays_the_patch_on_the_surface(sphere_touches):
             _, dist, _ = trimesh.proximity.closest_point(mesh, patch.points[patch.mask].double().numpy())
             means.append(float(dist.mean()) * N_GRID)
         assert means[0] < 0.1 and means[1] > 2 * means[0]
+
+
+def test_relative_contact_test_drops_the_rim_that_lies_off_the_surface(sphere_touches):
+    """The rim of a contact (pushed in a little, dragged by its neighbours) lies further from the surface than its
+    centre: a threshold relative to each touch's deepest push keeps a subset nearer the surface, and no touch empty."""
+    mesh, sensor, _, readings = sphere_touches
+    images = torch.stack([r.image for r in readings])
+    pos = torch.stack([r.position for r in readings])
+    dirs = torch.stack([r.direction for r in readings])
+    every = contact_patch(images, pos, dirs, sensor, N_GRID)
+    inner = contact_patch(images, pos, dirs, sensor, N_GRID, min_push_fraction=0.4)
+    torch.testing.assert_close(inner.points, every.points)
+    assert not (inner.mask & ~every.mask).any() and (inner.mask.sum(1) > 0).all()
+    assert (inner.mask.sum(1) < every.mask.sum(1)).all()
+    push = images[:, 2].flatten(1)
+    assert torch.equal(inner.mask, push > (0.4 * push.amax(1, keepdim=True)).clamp_min(0.1))
+
+    def mean_dist(p):
+        return trimesh.proximity.closest_point(mesh, p.points[p.mask].double().numpy())[1].mean()
+
+    assert mean_dist(inner) < mean_dist(every)
+    with pytest.raises(ValueError, match="min_push_fraction"):
+        contact_patch(images, pos, dirs, sensor, N_GRID, min_push_fraction=1.0)

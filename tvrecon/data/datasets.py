@@ -82,7 +82,8 @@ class ReconstructionDataset(GeneratedDataset):
         (max_touches,Hs*Ws) bool: each touch's contact layer mapped back to 3D
         (:func:`tvrecon.sim.sensor.patch.contact_patch`, derived from the cached raw image, position and direction at
         the sensor's resolution Hs x Ws; no regeneration), the mask True where the pad was pushed in by more than
-        ``patch_min_push`` cells (default 0.1; False on padded touches).
+        ``patch_min_push`` cells (default 0.1) and ``patch_min_push_fraction`` of the touch's deepest push (default 0;
+        False on padded touches).
 
     Args (in addition to :class:`GeneratedDataset`):
         num_samples: number of samples (objects; one view each).
@@ -216,6 +217,7 @@ def _contact_patches(dataset: GeneratedDataset, raw: Mapping[str, np.ndarray], s
         int(dataset.press.n_grid),
         float(dataset.press.domain_size),
         min_push=dataset.patch_min_push,
+        min_push_fraction=dataset.patch_min_push_fraction,
     )
 
 

@@ -85,6 +85,8 @@ class GeneratedDataset(Dataset):
         patch_min_push: the contact test of the touches' contact patches
             (:func:`tvrecon.sim.sensor.patch.contact_patch`): a contact-layer point counts as touching where the pad
             was pushed in by more than this many cells. Applied on load, not part of the cache key.
+        patch_min_push_fraction: in [0, 1): the contact test also asks for a push above this fraction of the touch's
+            deepest push (drops the rim of a contact, which lies off the surface; keeps thin parts' shallow contacts).
         memory_cache: also keep every entry read in this process's memory (one copy per dataloader worker), so each
             item is read from disk once: for small tactile-only sets trained for many epochs, where reading an
             entry (~20 ms) costs more than the training step it feeds (the 5,500-image classification set is ~70 MB).
@@ -110,6 +112,7 @@ class GeneratedDataset(Dataset):
         sim_device: str | torch.device | None = None,
         memory_cache: bool = False,
         patch_min_push: float = DEFAULT_MIN_PUSH,
+        patch_min_push_fraction: float = 0.0,
     ) -> None:
         if int(num_items) < 1:
             raise ValueError(f"num_items must be >= 1, got {num_items}")
@@ -121,6 +124,8 @@ class GeneratedDataset(Dataset):
             raise ValueError(f"tactile_scale must be > 0 (grid cells per unit), got {tactile_scale}")
         if not 0 <= float(patch_min_push) < float("inf"):
             raise ValueError(f"patch_min_push must be a finite number of cells >= 0, got {patch_min_push}")
+        if not 0 <= float(patch_min_push_fraction) < 1:
+            raise ValueError(f"patch_min_push_fraction must be in [0, 1), got {patch_min_push_fraction}")
         self.library = library if library is not None else ObjectLibrary()
         self.classes = list(classes) if classes is not None else list(self.library.classes)
         if not self.classes:
@@ -139,6 +144,7 @@ class GeneratedDataset(Dataset):
         self.tactile_size = _pair(tactile_size, "tactile_size")
         self.tactile_scale = float(tactile_scale)
         self.patch_min_push = float(patch_min_push)
+        self.patch_min_push_fraction = float(patch_min_push_fraction)
         self.cache = SampleCache(cache_dir)
         self.sim_device = sim_device
         self._simulator: EIPSimulator | None = None

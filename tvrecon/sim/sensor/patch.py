@@ -63,6 +63,7 @@ def contact_patch(
     n_grid: int,
     domain_size: float = 1.0,
     min_push: float = DEFAULT_MIN_PUSH,
+    min_push_fraction: float = 0.0,
 ) -> ContactPatch:
     """Contact points, normals and contact mask of touches, from their tactile images.
 
@@ -75,6 +76,10 @@ def contact_patch(
         n_grid: grid cells across the simulation domain (``PressConfig.n_grid``).
         domain_size: world units spanned by the domain (``PressConfig.domain_size``).
         min_push: contact threshold on the normal channel, in cells.
+        min_push_fraction: in [0, 1): also require a push above this fraction of the touch's deepest push. The rim of
+            a contact, barely pushed in, lies off the surface (the pad there is dragged in by its neighbours, not
+            stopped by the object); a threshold relative to each touch keeps the shallow contacts of thin parts, which
+            an absolute one would drop.
 
     Returns:
         :class:`ContactPatch` with points/normals (H*W, 3) or (T, H*W, 3) float32 and mask (H*W,) or (T, H*W).
@@ -97,6 +102,8 @@ def contact_patch(
             f"position and direction must have shape ({T}, 3) like the images, got {tuple(pos.shape)} and "
             f"{tuple(dirs.shape)}"
         )
+    if not 0.0 <= float(min_push_fraction) < 1.0:
+        raise ValueError(f"min_push_fraction must be in [0, 1), got {min_push_fraction}")
     if int(n_grid) < 1 or not float(domain_size) > 0:
         raise ValueError(f"n_grid must be >= 1 and domain_size > 0, got {n_grid} and {domain_size}")
     if not bool(torch.isfinite(images).all()):
@@ -109,7 +116,9 @@ def contact_patch(
     scale = float(domain_size) / int(n_grid)
     points = pos.to(dev)[:, None, :] + scale * local @ frames.transpose(1, 2)  # (T, HW, 3) world: R @ local
     normals = _layer_normals(points.view(T, H, W, 3)).reshape(T, H * W, 3)
-    mask = images[:, 2].flatten(1) > float(min_push)  # (T, HW)
+    push = images[:, 2].flatten(1)  # (T, HW) cells pushed in
+    threshold = (float(min_push_fraction) * push.amax(1, keepdim=True)).clamp_min(float(min_push))  # (T, 1)
+    mask = push > threshold  # (T, HW)
     if single:
         return ContactPatch(points[0], normals[0], mask[0])
     return ContactPatch(points, normals, mask)
