@@ -52,6 +52,7 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         "visual_only": "visual_only",
         "tactile_only": "tactile_only",
         "touch_geometry": "touch_geometry",
+        "touch_geometry_no_rim": "touch_geometry",
         "touch_residual": "touch_geometry",
         "touch_cascade": "touch_geometry",
     }.get(experiment, "fusion")
@@ -64,6 +65,8 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         residual = type(net.deformer).__name__ in ("TouchResidualDeformer", "TouchCascadeDeformer")
         assert residual == (experiment in ("touch_residual", "touch_cascade"))
         assert model.hparams.min_touches == (1 if residual else 0)  # the residual's visual path trains on every sample
+        # the patches' contact test: relative to each touch's deepest push only where the experiment drops the rim
+        assert cfg.data.patch_min_push_fraction == (0.4 if experiment == "touch_geometry_no_rim" else 0.0)
         return
     fusion = net.fusion
     assert fusion.use_gap == (experiment != "no_gap")

@@ -54,6 +54,7 @@ PRETTY_NAMES: dict[str, str] = {
     "single_stage": "Single-stage fusion",
     "touch_depth": "Ours + touch depth (extension)",
     "touch_geometry": "Touch geometry (beyond the paper)",
+    "touch_geometry_no_rim": "Touch geometry, patches without their rim (beyond the paper)",
     "touch_residual": "Touch geometry as a correction of Pixel2Mesh (beyond the paper)",
     "touch_cascade": "Touch geometry on the Pixel2Mesh answer (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",
