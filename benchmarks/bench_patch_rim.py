@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
 from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.losses.chamfer import nearest_neighbors  # noqa: E402
+from tvrecon.losses.chamfer import chamfer_terms  # noqa: E402
 
 BANDS = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 9.0)]
 TESTS = {  # name: (patch_min_push, patch_min_push_fraction)
@@ -86,9 +86,8 @@ def floor_terms(ds) -> dict[str, tuple[float, float, float, int, int]]:
         m = s["patch_mask"][:T]
         pts, gt = s["patch_points"][:T][m], s["points"]
         if len(pts):
-            to_cloud, _ = nearest_neighbors(gt[None], pts[None])
-            to_gt, _ = nearest_neighbors(pts[None], gt[None])
-            terms = (float(to_cloud.mean()) * 1e3, float(to_gt.mean()) * 1e3)
+            c = chamfer_terms(pts[None], gt[None], reduction="none")  # dist_xy: cloud -> GT, dist_yx: GT -> cloud
+            terms = (float(c.dist_yx.mean()) * 1e3, float(c.dist_xy.mean()) * 1e3)
         else:
             terms = (float("nan"), float("nan"))
         acc[ds.object_of(i)[0]].append((*terms, len(pts), int((m.sum(1) == 0).sum()), T))
