@@ -129,6 +129,7 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         cfg.trainer, logger=False, callbacks=[], default_root_dir=str(out_dir), enable_checkpointing=False
     )
     model.load_state_dict(state["state_dict"])
+    recalibrated = recalibrate_statistics(model, datamodule, cfg)
     rule = str(cfg.get("cls_fuse_rule", "mean_log_prob"))
     if members:
         fuse_into(model, members, rule)
@@ -157,6 +158,8 @@ def evaluate_checkpoint(ckpt: Path, cfg: DictConfig, out_dir: Path) -> dict[str,
         "checkpoint": str(ckpt),
         "data_protocol": data_protocol(run_cfg.data),
     }
+    if recalibrated:
+        result = {**result, "bn_recalibrated": recalibrated}
     if members:
         result = {**result, "fused_with": [str(m.ckpt) for m in members], "fusion_rule": rule}
     if trainer.is_global_zero:
@@ -209,6 +212,45 @@ def measure_fusion_share(model: L.LightningModule, datamodule: L.LightningDataMo
         k, share["samples"], stages, share["mesh_moved"], share["mesh_scale"],
     )  # fmt: skip
     return share
+
+
+def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningDataModule, cfg: DictConfig) -> dict:
+    """With ``cfg.bn_recalibrate_batches`` = K > 0: recompute the model's BatchNorm statistics over K training
+    batches (:mod:`tvrecon.models.bn_recalibrate`) with the touches of ``cfg.bn_recalibrate_touches`` ("train": each
+    sample's count drawn as in a training step; "max": all ``max_touches``, as validation). Returns what was done
+    (``{}`` when K = 0), for metrics.json.
+
+    Raises:
+        ValueError: K < 0, an unknown touch choice, or a model that is not a reconstruction model.
+    """
+    k = int(cfg.get("bn_recalibrate_batches") or 0)
+    if k < 0:
+        raise ValueError(f"bn_recalibrate_batches must be >= 0 (0 = the checkpoint's own statistics), got {k}")
+    if k == 0:
+        return {}
+    touches = str(cfg.get("bn_recalibrate_touches", "train"))
+    if not hasattr(model, "training_mask"):
+        raise ValueError(
+            f"bn_recalibrate_batches is for reconstruction runs (the touches of a training step); "
+            f"{type(model).__name__} is not one: set bn_recalibrate_batches=0"
+        )
+    masks = {"train": model.training_mask, "max": model.full_mask}
+    if touches not in masks:
+        raise ValueError(f"bn_recalibrate_touches must be 'train' or 'max', got {touches!r}")
+    from lightning.pytorch.utilities import move_data_to_device
+
+    from tvrecon.models.bn_recalibrate import recalibrate_batchnorm
+
+    device = next(model.parameters()).device
+
+    def forward(batch: dict) -> object:
+        batch = move_data_to_device(batch, device)
+        return model(batch, masks[touches](batch))
+
+    datamodule.setup("fit")
+    torch.manual_seed(int(cfg.seed))  # the training touch counts drawn, and the loader's shuffle
+    layers = recalibrate_batchnorm(model, datamodule.train_dataloader(), forward, k)
+    return {"batches": k, "touches": touches, "layers": layers}
 
 
 def eval_split(cfg: DictConfig) -> str:

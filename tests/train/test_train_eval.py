@@ -153,6 +153,36 @@ def test_train_checkpoint_then_eval_writes_tables(tmp_path: Path) -> None:
     assert vres["task"] == "validation" and vres["checkpoint"] == str(best)
     assert vres["val"]["val/chamfer"] > 0 and "val/chamfer" in val["tables"]
     assert not (tmp_path / "eval_val" / "tables").exists()
+    # bn_recalibrate_batches: the same checkpoint scored with its BatchNorm statistics recomputed on training batches
+    recal = evaluate(
+        compose_config(
+            "eval",
+            [f"run_dir={run}", "split=val", "bn_recalibrate_batches=2", "bn_recalibrate_touches=max"],
+            tmp_path / "eval_val_bn",
+        )
+    )
+    [rres] = recal["results"]
+    assert rres["bn_recalibrated"]["batches"] == 2 and rres["bn_recalibrated"]["touches"] == "max"
+    assert rres["bn_recalibrated"]["layers"] > 0
+    assert rres["val"]["val/chamfer"] > 0 and rres["val"]["val/chamfer"] != vres["val"]["val/chamfer"]
+    assert "bn_recalibrated" not in vres
+
+
+def test_bn_recalibrate_options_are_checked(tmp_path: Path) -> None:
+    from eval import recalibrate_statistics
+
+    def cfg(*overrides: str):  # noqa: ANN202
+        return compose_config("eval", ["ckpt_path=x.ckpt", *overrides], tmp_path)
+
+    classifier = torch.nn.Linear(2, 2)  # no training_mask: not a reconstruction model
+    assert recalibrate_statistics(classifier, None, cfg()) == {}  # off by default: nothing is asked of the model
+    with pytest.raises(ValueError, match="bn_recalibrate_batches must be >= 0"):
+        recalibrate_statistics(classifier, None, cfg("bn_recalibrate_batches=-1"))
+    with pytest.raises(ValueError, match="for reconstruction runs"):
+        recalibrate_statistics(classifier, None, cfg("bn_recalibrate_batches=2"))
+    classifier.training_mask = classifier.full_mask = lambda batch: None
+    with pytest.raises(ValueError, match="bn_recalibrate_touches must be 'train' or 'max'"):
+        recalibrate_statistics(classifier, None, cfg("bn_recalibrate_batches=2", "bn_recalibrate_touches=all"))
 
 
 def test_eval_split_must_be_test_or_val(tmp_path: Path) -> None:

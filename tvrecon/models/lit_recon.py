@@ -212,13 +212,16 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         counts = torch.randint(max(1, lo), hi + 1, (batch_size,))
         return torch.where(torch.rand(batch_size) < float(share), torch.zeros_like(counts), counts)
 
+    def training_mask(self, batch: Mapping[str, Tensor]) -> Tensor | None:
+        """The touches a training step reads: (B, T) bool, each sample's first k valid touches with k drawn by
+        :meth:`_touch_counts`; None for the visual-only model."""
+        if self.modality == "visual":
+            return None
+        return keep_first_touches(batch["touch_mask"], self._touch_counts(len(batch["touch_mask"])))
+
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
-        mask = None
-        if self.modality != "visual":
-            counts = self._touch_counts(len(batch["touch_mask"]))
-            mask = keep_first_touches(batch["touch_mask"], counts)
-        out = self(batch, mask)
+        out = self(batch, self.training_mask(batch))
         terms = self.compute_losses(out, points, normals)
         weight = float(self.hparams.get("patch_loss_weight", 0.0))
         if weight > 0 and out.get("touch") is not None:
@@ -235,14 +238,16 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
             self.log(f"train/{key}", value, prog_bar=True, batch_size=B)
         return terms["loss"]
 
-    def _full_mask(self, batch: Mapping[str, Tensor]) -> Tensor | None:
+    def full_mask(self, batch: Mapping[str, Tensor]) -> Tensor | None:
+        """The touches validation reads: (B, T) bool, each sample's first ``max_touches`` valid touches; None for
+        the visual-only model."""
         if self.modality == "visual":
             return None
         return keep_first_touches(batch["touch_mask"], int(self.hparams.max_touches))
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
-        out = self(batch, self._full_mask(batch))
+        out = self(batch, self.full_mask(batch))
         terms = self.compute_losses(out, points, normals)
         B = points.shape[0]
         self.log("val/loss", terms["loss"], prog_bar=True, batch_size=B, sync_dist=True)
