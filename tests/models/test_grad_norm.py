@@ -44,13 +44,16 @@ def test_logged_norm_is_the_unclipped_one(tmp_path) -> None:
     data = TensorDataset(torch.randn(32, 4), torch.randn(32, 1) * 10)
     module = _Linear()
     logged: list[float] = []
+    window: list[float] = []
 
     class _Record(L.Callback):
         def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:  # noqa: ANN001
             logged.append(float(trainer.callback_metrics["train/grad_norm"]))
+            window.append(float(trainer.callback_metrics["train/grad_norm_max"]))
 
     trainer = L.Trainer(
         max_steps=4,
+        log_every_n_steps=2,
         gradient_clip_val=1e-3,  # far below the norms: clipping acts on every step
         callbacks=[GradNormMonitor(), _Record()],
         logger=False,
@@ -62,6 +65,8 @@ def test_logged_norm_is_the_unclipped_one(tmp_path) -> None:
     assert len(logged) == 4
     assert logged == pytest.approx(module.seen, rel=1e-6)
     assert min(logged) > 1e-2  # the norm before clipping, not the clipped 1e-3
+    # the window's largest norm restarts after every 2nd step (the steps the logger keeps)
+    assert window == pytest.approx([logged[0], max(logged[:2]), logged[2], max(logged[2:4])], rel=1e-6)
 
 
 def test_bad_norm_type_is_refused() -> None:

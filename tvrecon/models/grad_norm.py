@@ -29,7 +29,8 @@ def total_grad_norm(parameters: object, norm_type: float = 2.0) -> torch.Tensor:
 
 
 class GradNormMonitor(L.Callback):
-    """Log ``train/grad_norm`` (the total 2-norm of the gradients, before clipping) at every optimizer step.
+    """Log ``train/grad_norm`` (the total 2-norm of the gradients, before clipping) at every optimizer step, and
+    ``train/grad_norm_max``, the largest since the last step the logger kept (one in ``log_every_n_steps``).
 
     Args:
         norm_type: the norm's order (2 = Euclidean, as ``gradient_clip_algorithm=norm`` uses).
@@ -40,9 +41,17 @@ class GradNormMonitor(L.Callback):
         if not norm_type > 0:
             raise ValueError(f"GradNormMonitor: norm_type must be > 0, got {norm_type}")
         self.norm_type = float(norm_type)
+        self._window_max = 0.0
 
     def on_before_optimizer_step(self, trainer: L.Trainer, pl_module: L.LightningModule, optimizer: Optimizer) -> None:
         params = [p for group in optimizer.param_groups for p in group["params"]]
         norm = total_grad_norm(params, self.norm_type)
+        self._window_max = max(self._window_max, float(norm))
         # one value per step, not averaged over the epoch: batch_size only spares Lightning inferring one
         pl_module.log("train/grad_norm", norm, on_step=True, on_epoch=False, batch_size=1)
+        # the logger keeps every log_every_n_steps-th step only: the largest norm since the last kept one shows a
+        # spike between them
+        pl_module.log("train/grad_norm_max", self._window_max, on_step=True, on_epoch=False, batch_size=1)
+        every = max(1, int(getattr(trainer, "log_every_n_steps", 1) or 1))
+        if (trainer.global_step + 1) % every == 0:
+            self._window_max = 0.0
