@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import lightning as L
 import pytest
 import torch
 from torch import nn
+from torch.utils.data import DataLoader
 
-from tvrecon.models.bn_recalibrate import recalibrate_batchnorm
+from tvrecon.models.bn_recalibrate import PreciseBatchNorm, recalibrate_batchnorm
 
 
 def _net() -> nn.Sequential:
@@ -68,3 +70,78 @@ def test_bad_input_is_refused_and_changes_nothing() -> None:
         recalibrate_batchnorm(net, [], net, num_batches=4)
     assert float(net[1].running_mean[0]) == 100.0  # the stored statistics are untouched
     assert recalibrate_batchnorm(nn.Linear(3, 3), [torch.randn(4, 3)], lambda x: x, 1) == 0  # no BatchNorm: a no-op
+
+
+class _Recon(L.LightningModule):
+    """A reconstruction-like module: forward(batch, mask), a training_mask that draws from torch's random state."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.body = nn.Sequential(nn.Linear(3, 4), nn.BatchNorm1d(4), nn.ReLU(), nn.Linear(4, 1))
+
+    def training_mask(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.rand(len(batch["x"])) < 0.5
+
+    def forward(self, batch: dict[str, torch.Tensor], mask: torch.Tensor) -> torch.Tensor:
+        return self.body(batch["x"] * (1 + mask[:, None].float()))
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return ((self(batch, self.training_mask(batch)) - batch["y"]) ** 2).mean()
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        self.log("val/loss", ((self(batch, torch.ones(len(batch["x"]), dtype=torch.bool)) - batch["y"]) ** 2).mean())
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.SGD(self.parameters(), lr=0.1)
+
+
+class _Pairs(torch.utils.data.Dataset):
+    def __init__(self, n: int = 64) -> None:
+        g = torch.Generator().manual_seed(0)
+        self.x, self.y = 3 + 2 * torch.randn(n, 3, generator=g), torch.randn(n, 1, generator=g)
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        return {"x": self.x[i], "y": self.y[i]}
+
+
+def _fit(tmp_path, callbacks: list[L.Callback], shuffle: bool) -> _Recon:  # noqa: ANN001
+    torch.manual_seed(0)
+    module = _Recon()
+    trainer = L.Trainer(
+        max_epochs=2, callbacks=callbacks, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        default_root_dir=tmp_path, num_sanity_val_steps=1,
+    )  # fmt: skip
+    train = DataLoader(_Pairs(), batch_size=8, shuffle=shuffle)
+    trainer.fit(module, train, DataLoader(_Pairs(16), batch_size=8))
+    return module
+
+
+def test_precise_batchnorm_leaves_training_alone_and_keeps_the_final_weights_statistics(tmp_path) -> None:
+    plain = _fit(tmp_path / "a", [], shuffle=True)
+    precise = _fit(tmp_path / "b", [PreciseBatchNorm(num_batches=3)], shuffle=True)
+    for (name, a), b in zip(plain.named_parameters(), precise.parameters(), strict=True):
+        assert torch.equal(a, b), name  # the same batches and draws: the random state was restored
+    bn_plain, bn_precise = plain.body[1], precise.body[1]
+    assert not torch.allclose(bn_plain.running_mean, bn_precise.running_mean)
+
+    # without shuffling, the last validation's statistics are the plain average over the first 3 training batches at
+    # the final weights: each sample's input is scaled by 1 or 2 (its mask), so per channel the mean lies between
+    # the means with every mask off and every mask on
+    fixed = _fit(tmp_path / "c", [PreciseBatchNorm(num_batches=3)], shuffle=False)
+    x = _Pairs().x[:24]
+    with torch.no_grad():
+        low, high = fixed.body[0](x).mean(0), fixed.body[0](2 * x).mean(0)
+    mean = fixed.body[1].running_mean
+    assert bool(((mean >= torch.minimum(low, high) - 1e-5) & (mean <= torch.maximum(low, high) + 1e-5)).all())
+    assert int(fixed.body[1].num_batches_tracked) == 3 and fixed.body[1].momentum == pytest.approx(0.1)
+
+
+def test_precise_batchnorm_needs_a_reconstruction_module(tmp_path) -> None:
+    with pytest.raises(ValueError, match="num_batches must be >= 1"):
+        PreciseBatchNorm(num_batches=0)
+    net = L.LightningModule()
+    with pytest.raises(TypeError, match="training_mask"):
+        PreciseBatchNorm().setup(L.Trainer(logger=False), net, "fit")

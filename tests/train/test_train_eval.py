@@ -48,8 +48,11 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         return
     assert type(datamodule).__name__ == "ReconstructionDataModule"
     net = model.net
+    # beyond the paper: precise BatchNorm statistics before each validation, the model and data otherwise the paper's
+    assert ("precise_bn" in cfg.callbacks) == experiment.endswith("_precise_bn")
     expected_mode = {
         "visual_only": "visual_only",
+        "visual_only_precise_bn": "visual_only",
         "tactile_only": "tactile_only",
         "touch_geometry": "touch_geometry",
         "touch_geometry_no_rim": "touch_geometry",
@@ -110,6 +113,32 @@ def test_fast_dev_run_train_prints_tables(tmp_path: Path, capsys: pytest.Capture
     printed = capsys.readouterr().out
     assert "Table 3" in printed and "Table 4" in printed and "Ours (smoke, tiny data)" in printed
     assert "Ours (smoke, tiny data) + touch refinement" in printed
+
+
+def test_precise_bn_recalibrates_before_the_validation_of_a_real_fit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import tvrecon.models.bn_recalibrate as bn
+    from train import train
+
+    calls: list[tuple[int, int]] = []
+    real = bn.recalibrate_batchnorm
+
+    def spy(model, batches, forward, num_batches):  # noqa: ANN001, ANN202
+        layers = real(model, batches, forward, num_batches)
+        calls.append((num_batches, layers))
+        return layers
+
+    monkeypatch.setattr(bn, "recalibrate_batchnorm", spy)
+    cfg = compose_config("train", ["experiment=smoke", "+trainer.fast_dev_run=true"], tmp_path)
+    _synthetic(cfg, tmp_path)
+    precise = compose_config("train", ["experiment=full_precise_bn"], tmp_path / "cfg").callbacks.precise_bn
+    with open_dict(cfg):
+        cfg.model.export = False
+        cfg.callbacks.precise_bn = precise
+    train(cfg)
+    # one validation in a fast_dev_run fit, none in the test that follows; the fusion model's BatchNorms all recomputed
+    assert len(calls) == 1 and calls[0][0] == 20 and calls[0][1] > 20
 
 
 @pytest.mark.slow

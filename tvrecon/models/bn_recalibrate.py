@@ -10,20 +10,28 @@ scored on, and its validation error can jump while its training loss does not.
 batches of the fixed weights (``momentum=None``, as ``torch.optim.swa_utils.update_bn`` does for averaged weights),
 with the rest of the network in eval mode and no gradient. ``eval.py bn_recalibrate_batches=K`` applies it to each
 checkpoint before scoring it; comparing the two scores tells a statistics mismatch from a worse network.
+:class:`PreciseBatchNorm` (beyond the paper; ``experiment=full_precise_bn``) does it in training, before every
+validation, so that the validation error that chooses the checkpoint, and the statistics the checkpoint keeps, are
+those of its own weights. Training itself is unchanged: it normalises with batch statistics, and the random state is
+restored after the recalibration's draws.
 """
 
 from __future__ import annotations
 
 import logging
+import random
 from collections.abc import Callable, Iterable
 from itertools import chain, islice
 from typing import Any
 
+import lightning as L
+import numpy as np
 import torch
+from lightning.pytorch.utilities import move_data_to_device
 from torch import nn
 from torch.nn.modules.batchnorm import _BatchNorm
 
-__all__ = ["recalibrate_batchnorm"]
+__all__ = ["PreciseBatchNorm", "recalibrate_batchnorm"]
 
 log = logging.getLogger(__name__)
 
@@ -79,3 +87,52 @@ def recalibrate_batchnorm(
         model.train(was_training)
     log.info("recalibrated %d BatchNorm layers over %d batches", len(norms), seen)
     return len(norms)
+
+
+class PreciseBatchNorm(L.Callback):
+    """Before every validation of a fit, recompute the BatchNorm statistics over ``num_batches`` training batches
+    (:func:`recalibrate_batchnorm`), with the touches a training step reads (the module's ``training_mask``).
+
+    The sanity check before training is left alone. The random state (Python's, NumPy's and torch's: the touch counts
+    drawn, the loader's shuffle) is saved and restored around it, so the training batches and touch counts after it
+    are those of a fit without it. Cost: ``num_batches`` forward passes per validation (20 of the 82 training
+    batches of ``paper_cpu``: about 6% of an epoch on the CPU).
+
+    Args:
+        num_batches: training batches to average over (>= 1).
+    """
+
+    def __init__(self, num_batches: int = 20) -> None:
+        super().__init__()
+        if int(num_batches) < 1:
+            raise ValueError(f"PreciseBatchNorm: num_batches must be >= 1, got {num_batches}")
+        self.num_batches = int(num_batches)
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        if getattr(pl_module, "training_mask", None) is None:
+            raise TypeError(
+                f"PreciseBatchNorm needs a module with training_mask(batch) (the reconstruction module); "
+                f"{type(pl_module).__name__} has none: remove callbacks.precise_bn"
+            )
+
+    def on_validation_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking or trainer.state.fn != "fit":
+            return
+        training_mask = pl_module.training_mask
+        loader = trainer.datamodule.train_dataloader() if trainer.datamodule is not None else trainer.train_dataloader
+        device = pl_module.device
+
+        def forward(batch: Any) -> object:
+            batch = move_data_to_device(batch, device)
+            return pl_module(batch, training_mask(batch))
+
+        states = (random.getstate(), np.random.get_state(), torch.get_rng_state())
+        cuda_states = torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None
+        try:
+            recalibrate_batchnorm(pl_module, loader, forward, self.num_batches)
+        finally:
+            random.setstate(states[0])
+            np.random.set_state(states[1])
+            torch.set_rng_state(states[2])
+            if cuda_states is not None:
+                torch.cuda.set_rng_state_all(cuda_states)

@@ -53,6 +53,8 @@ PRETTY_NAMES: dict[str, str] = {
     "region_5x5": "5x5 per-pixel fusion",
     "single_stage": "Single-stage fusion",
     "touch_depth": "Ours + touch depth (extension)",
+    "full_precise_bn": "Ours, precise BatchNorm statistics (beyond the paper)",
+    "visual_only_precise_bn": "Visual only, precise BatchNorm statistics (beyond the paper)",
     "touch_geometry": "Touch geometry (beyond the paper)",
     "touch_geometry_no_rim": "Touch geometry, patches without their rim (beyond the paper)",
     "touch_residual": "Touch geometry as a correction of Pixel2Mesh (beyond the paper)",
