@@ -239,7 +239,7 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
         raise ValueError(f"bn_recalibrate_touches must be 'train' or 'max', got {touches!r}")
     from lightning.pytorch.utilities import move_data_to_device
 
-    from tvrecon.models.bn_recalibrate import recalibrate_batchnorm
+    from tvrecon.models.bn_recalibrate import batchnorm_statistics, recalibrate_batchnorm, statistics_shift
 
     device = next(model.parameters()).device
 
@@ -249,8 +249,15 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
 
     datamodule.setup("fit")
     torch.manual_seed(int(cfg.seed))  # the training touch counts drawn, and the loader's shuffle
+    before = batchnorm_statistics(model)
     layers = recalibrate_batchnorm(model, datamodule.train_dataloader(), forward, k)
-    return {"batches": k, "touches": touches, "layers": layers}
+    shift = statistics_shift(before, batchnorm_statistics(model))
+    for group, g in shift.items():
+        log.info(
+            "BatchNorm statistics of %s (%d layers) recomputed: stored means up to %.2f std off, variances up to "
+            "%.2fx", group, g["layers"], g["mean_shift"], g["var_ratio"],
+        )  # fmt: skip
+    return {"batches": k, "touches": touches, "layers": layers, "shift": shift}
 
 
 def eval_split(cfg: DictConfig) -> str:

@@ -8,7 +8,12 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from tvrecon.models.bn_recalibrate import PreciseBatchNorm, recalibrate_batchnorm
+from tvrecon.models.bn_recalibrate import (
+    PreciseBatchNorm,
+    batchnorm_statistics,
+    recalibrate_batchnorm,
+    statistics_shift,
+)
 
 
 def _net() -> nn.Sequential:
@@ -29,7 +34,14 @@ def test_statistics_become_the_batches_average_and_nothing_else_changes() -> Non
     mean, std = torch.tensor([1.0, -2.0, 0.5]), torch.tensor([0.5, 2.0, 1.0])
     batches = [mean + std * torch.randn(256, 3, generator=g) for _ in range(8)]
     net.train()
+    before = batchnorm_statistics(net)
     layers = recalibrate_batchnorm(net, batches, net, num_batches=8)
+    # stored mean 100 against the data's 1 / -2 / 0.5 with std 0.5 / 2 / 1: 198 std off on the first channel
+    [(group, shift)] = statistics_shift(before, batchnorm_statistics(net), depth=1).items()
+    assert group == "1" and shift["layers"] == 1
+    data_mean, data_std = net[1].running_mean, (net[1].running_var + 1e-5).sqrt()
+    assert shift["mean_shift"] == pytest.approx(float(((100 - data_mean) / data_std).max()), rel=1e-5)
+    assert shift["var_ratio"] == pytest.approx(float((net[1].running_var + 1e-5).max() / (1e-4 + 1e-5)), rel=1e-4)
     assert layers == 1
     data = torch.cat(batches)
     # momentum=None: the plain average of the 8 batch means / unbiased variances

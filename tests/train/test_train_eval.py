@@ -193,6 +193,9 @@ def test_train_checkpoint_then_eval_writes_tables(tmp_path: Path) -> None:
     [rres] = recal["results"]
     assert rres["bn_recalibrated"]["batches"] == 2 and rres["bn_recalibrated"]["touches"] == "max"
     assert rres["bn_recalibrated"]["layers"] > 0
+    shift = rres["bn_recalibrated"]["shift"]  # per group of layers (net.visual, net.tactile, ...)
+    assert sum(g["layers"] for g in shift.values()) == rres["bn_recalibrated"]["layers"]
+    assert all(g["mean_shift"] >= 0 and g["var_ratio"] >= 1 for g in shift.values())
     assert rres["val"]["val/chamfer"] > 0 and rres["val"]["val/chamfer"] != vres["val"]["val/chamfer"]
     assert "bn_recalibrated" not in vres
 

@@ -31,11 +31,45 @@ from lightning.pytorch.utilities import move_data_to_device
 from torch import nn
 from torch.nn.modules.batchnorm import _BatchNorm
 
-__all__ = ["PreciseBatchNorm", "recalibrate_batchnorm"]
+__all__ = ["PreciseBatchNorm", "batchnorm_statistics", "recalibrate_batchnorm", "statistics_shift"]
 
 log = logging.getLogger(__name__)
 
 _NONE = object()
+
+
+def batchnorm_statistics(model: nn.Module) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+    """A copy of every BatchNorm's running (mean, var), (C,) float each, by module name."""
+    return {
+        name: (m.running_mean.detach().clone(), m.running_var.detach().clone())
+        for name, m in model.named_modules()
+        if isinstance(m, _BatchNorm) and m.track_running_stats and m.running_mean is not None
+    }
+
+
+def statistics_shift(
+    before: dict[str, tuple[torch.Tensor, torch.Tensor]],
+    after: dict[str, tuple[torch.Tensor, torch.Tensor]],
+    depth: int = 2,
+) -> dict[str, dict[str, float]]:
+    """How far two sets of BatchNorm statistics lie apart, per group of layers (the first ``depth`` parts of a name,
+    e.g. ``net.visual``): ``mean_shift``, the largest ``|mean_before - mean_after| / std_after`` over the group's
+    channels, and ``var_ratio``, the largest ``max(v_b / v_a, v_a / v_b)``; ``layers``, how many layers.
+    A shift of 1 means a channel's stored mean is one standard deviation off the data's."""
+    groups: dict[str, dict[str, float]] = {}
+    for name, (mean_a, var_a) in after.items():
+        if name not in before:
+            continue
+        mean_b, var_b = before[name]
+        eps = 1e-5
+        shift = float(((mean_b - mean_a).abs() / (var_a + eps).sqrt()).max())
+        ratio = float(torch.maximum((var_b + eps) / (var_a + eps), (var_a + eps) / (var_b + eps)).max())
+        key = ".".join(name.split(".")[:depth])
+        g = groups.setdefault(key, {"layers": 0, "mean_shift": 0.0, "var_ratio": 1.0})
+        g["layers"] += 1
+        g["mean_shift"] = max(g["mean_shift"], shift)
+        g["var_ratio"] = max(g["var_ratio"], ratio)
+    return groups
 
 
 def recalibrate_batchnorm(
