@@ -36,12 +36,14 @@ def test_statistics_become_the_batches_average_and_nothing_else_changes() -> Non
     net.train()
     before = batchnorm_statistics(net)
     layers = recalibrate_batchnorm(net, batches, net, num_batches=8)
-    # stored mean 100 against the data's 1 / -2 / 0.5 with std 0.5 / 2 / 1: 198 std off on the first channel
+    # stored mean 100, std 0.01 against the data's means 1 / -2 / 0.5 and std 0.5 / 2 / 1: in eval mode the first
+    # channel's output would sit (100 - 1) / 0.01 stored std off and the second spread 200x too wide
     [(group, shift)] = statistics_shift(before, batchnorm_statistics(net), depth=1).items()
     assert group == "1" and shift["layers"] == 1
+    stored_std = (torch.tensor(1e-4) + 1e-5).sqrt()
     data_mean, data_std = net[1].running_mean, (net[1].running_var + 1e-5).sqrt()
-    assert shift["mean_shift"] == pytest.approx(float(((100 - data_mean) / data_std).max()), rel=1e-5)
-    assert shift["var_ratio"] == pytest.approx(float((net[1].running_var + 1e-5).max() / (1e-4 + 1e-5)), rel=1e-4)
+    assert shift["mean_shift"] == pytest.approx(float(((100 - data_mean) / stored_std).max()), rel=1e-5)
+    assert shift["std_ratio"] == pytest.approx(float(data_std.max() / stored_std), rel=1e-5)
     assert layers == 1
     data = torch.cat(batches)
     # momentum=None: the plain average of the 8 batch means / unbiased variances

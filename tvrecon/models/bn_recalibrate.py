@@ -48,27 +48,32 @@ def batchnorm_statistics(model: nn.Module) -> dict[str, tuple[torch.Tensor, torc
 
 
 def statistics_shift(
-    before: dict[str, tuple[torch.Tensor, torch.Tensor]],
-    after: dict[str, tuple[torch.Tensor, torch.Tensor]],
-    depth: int = 2,
+    stored: dict[str, tuple[torch.Tensor, torch.Tensor]],
+    data: dict[str, tuple[torch.Tensor, torch.Tensor]],
+    depth: int | None = 2,
+    eps: float = 1e-5,
 ) -> dict[str, dict[str, float]]:
-    """How far two sets of BatchNorm statistics lie apart, per group of layers (the first ``depth`` parts of a name,
-    e.g. ``net.visual``): ``mean_shift``, the largest ``|mean_before - mean_after| / std_after`` over the group's
-    channels, and ``var_ratio``, the largest ``max(v_b / v_a, v_a / v_b)``; ``layers``, how many layers.
-    A shift of 1 means a channel's stored mean is one standard deviation off the data's."""
+    """How wrong eval-mode BatchNorm outputs are with the ``stored`` statistics when the inputs follow ``data``'s, per
+    group of layers (the first ``depth`` parts of a name, e.g. ``net.visual``; None: each layer on its own).
+
+    A layer normalises ``(x - mean_stored) / std_stored``; on inputs of mean ``mean_data`` and spread ``std_data`` the
+    result has mean ``(mean_data - mean_stored) / std_stored`` (should be 0) and spread ``std_data / std_stored``
+    (should be 1), before the layer's scale and shift. Returned per group: ``mean_shift``, the largest of the first
+    over the group's channels; ``std_ratio``, the largest of the second and its inverse; ``layers``.
+    """
     groups: dict[str, dict[str, float]] = {}
-    for name, (mean_a, var_a) in after.items():
-        if name not in before:
+    for name, (mean_d, var_d) in data.items():
+        if name not in stored:
             continue
-        mean_b, var_b = before[name]
-        eps = 1e-5
-        shift = float(((mean_b - mean_a).abs() / (var_a + eps).sqrt()).max())
-        ratio = float(torch.maximum((var_b + eps) / (var_a + eps), (var_a + eps) / (var_b + eps)).max())
-        key = ".".join(name.split(".")[:depth])
-        g = groups.setdefault(key, {"layers": 0, "mean_shift": 0.0, "var_ratio": 1.0})
+        mean_s, var_s = stored[name]
+        std_s, std_d = (var_s + eps).sqrt(), (var_d + eps).sqrt()
+        shift = float(((mean_d - mean_s).abs() / std_s).max())
+        ratio = float(torch.maximum(std_d / std_s, std_s / std_d).max())
+        key = name if depth is None else ".".join(name.split(".")[:depth])
+        g = groups.setdefault(key, {"layers": 0, "mean_shift": 0.0, "std_ratio": 1.0})
         g["layers"] += 1
         g["mean_shift"] = max(g["mean_shift"], shift)
-        g["var_ratio"] = max(g["var_ratio"], ratio)
+        g["std_ratio"] = max(g["std_ratio"], ratio)
     return groups
 
 
