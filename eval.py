@@ -254,7 +254,8 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
     after = batchnorm_statistics(model)
     shift = statistics_shift(before, after)
     per_layer = statistics_shift(before, after, depth=None)  # one entry a layer
-    worst = dict(sorted(per_layer.items(), key=lambda kv: -kv[1]["mean_shift"])[:5])
+    # the layers whose eval-mode output is the furthest off: by the larger of the mean's shift and the spread's ratio
+    worst = dict(sorted(per_layer.items(), key=lambda kv: -max(kv[1]["mean_shift"], kv[1]["std_ratio"]))[:5])
     for group, g in shift.items():
         log.info(
             "BatchNorm statistics of %s (%d layers) recomputed: the stored ones put the data's mean up to %.2f "
