@@ -255,7 +255,9 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
     shift = statistics_shift(before, after)
     per_layer = statistics_shift(before, after, depth=None)  # one entry a layer
     # the layers whose eval-mode output is the furthest off: by the larger of the mean's shift and the spread's ratio
-    worst = dict(sorted(per_layer.items(), key=lambda kv: -max(kv[1]["mean_shift"], kv[1]["std_ratio"]))[:5])
+    # (a list: metrics.json sorts the keys of a mapping)
+    ranked = sorted(per_layer.items(), key=lambda kv: -max(kv[1]["mean_shift"], kv[1]["std_ratio"]))
+    worst = [{"layer": name, "mean_shift": g["mean_shift"], "std_ratio": g["std_ratio"]} for name, g in ranked[:5]]
     for group, g in shift.items():
         log.info(
             "BatchNorm statistics of %s (%d layers) recomputed: the stored ones put the data's mean up to %.2f "

@@ -21,6 +21,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -63,13 +64,14 @@ def main(argv: list[str] | None = None) -> int:
     for ax, run in zip(axes[0], args.run, strict=True):
         stored = stored_curve(run)
         points = recomputed_points(args.evals, run)
-        ax.plot(list(stored), list(stored.values()), "o-", label="stored statistics (what training saw)")
-        for touches, marker in (("train", "s--"), ("max", "^:")):
+        ax.plot(list(stored), list(stored.values()), "o-", label="stored statistics (train.py's validation)")
+        for touches, marker in (("train", "s--"), ("max", "^")):
             pts = dict(sorted(points.get(touches, {}).items()))
             if pts:
                 ax.plot(list(pts), list(pts.values()), marker, label=f"recomputed ({touches} touches)")
         ax.set_title(run.name, fontsize=9)
         ax.set_xlabel("epoch")
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
         ax.set_ylabel("val chamfer x1e-3")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
