@@ -237,27 +237,15 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
     masks = {"train": model.training_mask, "max": model.full_mask}
     if touches not in masks:
         raise ValueError(f"bn_recalibrate_touches must be 'train' or 'max', got {touches!r}")
-    from lightning.pytorch.utilities import move_data_to_device
-
-    from tvrecon.models.bn_recalibrate import batchnorm_statistics, recalibrate_batchnorm, statistics_shift
-
-    device = next(model.parameters()).device
-
-    def forward(batch: dict) -> object:
-        batch = move_data_to_device(batch, device)
-        return model(batch, masks[touches](batch))
+    from tvrecon.models.bn_recalibrate import batchnorm_statistics, recalibrate_module, statistics_shift, worst_layers
 
     datamodule.setup("fit")
     torch.manual_seed(int(cfg.seed))  # the training touch counts drawn, and the loader's shuffle
     before = batchnorm_statistics(model)
-    layers = recalibrate_batchnorm(model, datamodule.train_dataloader(), forward, k)
+    layers = recalibrate_module(model, datamodule.train_dataloader(), k, masks[touches])
     after = batchnorm_statistics(model)
     shift = statistics_shift(before, after)
-    per_layer = statistics_shift(before, after, depth=None)  # one entry a layer
-    # the layers whose eval-mode output is the furthest off: by the larger of the mean's shift and the spread's ratio
-    # (a list: metrics.json sorts the keys of a mapping)
-    ranked = sorted(per_layer.items(), key=lambda kv: -max(kv[1]["mean_shift"], kv[1]["std_ratio"]))
-    worst = [{"layer": name, "mean_shift": g["mean_shift"], "std_ratio": g["std_ratio"]} for name, g in ranked[:5]]
+    worst = worst_layers(before, after)
     for group, g in shift.items():
         log.info(
             "BatchNorm statistics of %s (%d layers) recomputed: the stored ones put the data's mean up to %.2f "

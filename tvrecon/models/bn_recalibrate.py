@@ -31,7 +31,14 @@ from lightning.pytorch.utilities import move_data_to_device
 from torch import nn
 from torch.nn.modules.batchnorm import _BatchNorm
 
-__all__ = ["PreciseBatchNorm", "batchnorm_statistics", "recalibrate_batchnorm", "statistics_shift"]
+__all__ = [
+    "PreciseBatchNorm",
+    "batchnorm_statistics",
+    "recalibrate_batchnorm",
+    "recalibrate_module",
+    "statistics_shift",
+    "worst_layers",
+]
 
 log = logging.getLogger(__name__)
 
@@ -128,6 +135,36 @@ def recalibrate_batchnorm(
     return len(norms)
 
 
+def worst_layers(
+    stored: dict[str, tuple[torch.Tensor, torch.Tensor]],
+    data: dict[str, tuple[torch.Tensor, torch.Tensor]],
+    n: int = 5,
+) -> list[dict[str, float | str]]:
+    """The ``n`` layers whose eval-mode output :func:`statistics_shift` finds furthest off (by the larger of the mean
+    shift and the spread ratio), furthest first: ``[{"layer", "mean_shift", "std_ratio"}, ...]`` (a list, so that the
+    order survives a JSON writer that sorts keys)."""
+    per_layer = statistics_shift(stored, data, depth=None)
+    ranked = sorted(per_layer.items(), key=lambda kv: -max(kv[1]["mean_shift"], kv[1]["std_ratio"]))
+    return [{"layer": name, "mean_shift": g["mean_shift"], "std_ratio": g["std_ratio"]} for name, g in ranked[:n]]
+
+
+def recalibrate_module(
+    module: L.LightningModule,
+    batches: Iterable[Any],
+    num_batches: int,
+    mask: Callable[[Any], torch.Tensor | None],
+) -> int:
+    """:func:`recalibrate_batchnorm` for a reconstruction module: each batch moved to the module's device and run as
+    ``module(batch, mask(batch))`` (``mask``: e.g. ``module.training_mask``). Returns the layers recalibrated."""
+    device = module.device
+
+    def forward(batch: Any) -> object:
+        batch = move_data_to_device(batch, device)
+        return module(batch, mask(batch))
+
+    return recalibrate_batchnorm(module, batches, forward, num_batches)
+
+
 class PreciseBatchNorm(L.Callback):
     """Before every validation of a fit, recompute the BatchNorm statistics over ``num_batches`` training batches
     (:func:`recalibrate_batchnorm`), with the touches a training step reads (the module's ``training_mask``).
@@ -157,18 +194,11 @@ class PreciseBatchNorm(L.Callback):
     def on_validation_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or trainer.state.fn != "fit":
             return
-        training_mask = pl_module.training_mask
         loader = trainer.datamodule.train_dataloader() if trainer.datamodule is not None else trainer.train_dataloader
-        device = pl_module.device
-
-        def forward(batch: Any) -> object:
-            batch = move_data_to_device(batch, device)
-            return pl_module(batch, training_mask(batch))
-
         states = (random.getstate(), np.random.get_state(), torch.get_rng_state())
         cuda_states = torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None
         try:
-            recalibrate_batchnorm(pl_module, loader, forward, self.num_batches)
+            recalibrate_module(pl_module, loader, self.num_batches, pl_module.training_mask)
         finally:
             random.setstate(states[0])
             np.random.set_state(states[1])
