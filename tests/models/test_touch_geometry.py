@@ -185,3 +185,39 @@ def test_overfits_patch_term_with_real_patches_only() -> None:
         swapped_loss = patch_to_mesh_loss(swapped["verts"][-1], target).item()
     assert own_loss < 2e-3
     assert swapped_loss > 3 * own_loss
+
+
+def test_view_pass_is_the_no_touch_answer_in_training_only() -> None:
+    """``view_pass``: in training the output also holds the same network's answer without touches (on the same image
+    features), which a loss can train on every sample; in eval one pass, as without the option."""
+    B, T, Q = 2, 4, 30
+    torch.manual_seed(0)
+    net = TouchGeometryReconstructor(deformer=TouchGeometryDeformer(hidden=16, num_blocks=1), view_pass=True)
+    K, RT = _camera(B)
+    image = torch.rand(B, 3, 64, 64)
+    pts, nrm, pmask = _patches(B, T, Q)
+    net.eval()  # BatchNorm in eval: the same features in both calls
+    with torch.no_grad():
+        none = net(image, K, RT)
+        touched = net(image, K, RT, patch_points=pts, patch_normals=nrm, patch_mask=pmask)
+    assert "visual" not in none and "visual" not in touched
+    net.train()
+    net.visual.eval()  # the backbone's BatchNorm as above, so both passes read the features the eval calls read
+    out = net(image, K, RT, patch_points=pts, patch_normals=nrm, patch_mask=pmask)
+    assert "visual" in out
+    torch.testing.assert_close(out["visual"]["verts"][-1], none["verts"][-1])  # the view pass = no touch
+    torch.testing.assert_close(out["verts"][-1], touched["verts"][-1])  # the touched pass is unchanged
+    assert (out["verts"][-1] - out["visual"]["verts"][-1]).abs().max() > 1e-6
+    loss = out["visual"]["verts"][-1].square().mean()
+    loss.backward()  # the view pass's loss trains the shared backbone and deformer
+    assert net.visual.stem[0].weight.grad is not None and net.visual.stem[0].weight.grad.abs().sum() > 0
+    assert net.deformer.stages[-1].conv_out.self_linear.weight.grad.abs().sum() > 0
+    no_touch = net(image, K, RT)
+    assert "visual" not in no_touch  # a batch without touches is its own view pass
+
+
+def test_view_pass_needs_touch_geometrys_own_deformer() -> None:
+    from tvrecon.models.components.touch_residual import TouchResidualDeformer
+
+    with pytest.raises(ValueError, match="view_pass"):
+        TouchGeometryReconstructor(deformer=TouchResidualDeformer(hidden=16, num_blocks=1), view_pass=True)

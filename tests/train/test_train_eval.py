@@ -56,6 +56,7 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         "tactile_only": "tactile_only",
         "touch_geometry": "touch_geometry",
         "touch_geometry_no_rim": "touch_geometry",
+        "touch_geometry_view_pass": "touch_geometry",
         "touch_residual": "touch_geometry",
         "touch_cascade": "touch_geometry",
     }.get(experiment, "fusion")
@@ -67,7 +68,9 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         assert net.reads_patches and not hasattr(net, "tactile") and model.hparams.patch_loss_weight > 0
         residual = type(net.deformer).__name__ in ("TouchResidualDeformer", "TouchCascadeDeformer")
         assert residual == (experiment in ("touch_residual", "touch_cascade"))
-        assert model.hparams.min_touches == (1 if residual else 0)  # the residual's visual path trains on every sample
+        # the residual's visual path, and the view pass, train the touch-free answer on every sample
+        assert net.view_pass == (experiment == "touch_geometry_view_pass")
+        assert model.hparams.min_touches == (1 if residual or net.view_pass else 0)
         # the patches' contact test: relative to each touch's deepest push only where the experiment drops the rim
         assert cfg.data.patch_min_push_fraction == (0.4 if experiment == "touch_geometry_no_rim" else 0.0)
         return

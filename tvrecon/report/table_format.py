@@ -57,6 +57,7 @@ PRETTY_NAMES: dict[str, str] = {
     "visual_only_precise_bn": "Visual only, precise BatchNorm statistics (beyond the paper)",
     "touch_geometry": "Touch geometry (beyond the paper)",
     "touch_geometry_no_rim": "Touch geometry, patches without their rim (beyond the paper)",
+    "touch_geometry_view_pass": "Touch geometry, a view-alone pass on every sample (beyond the paper)",
     "touch_residual": "Touch geometry as a correction of Pixel2Mesh (beyond the paper)",
     "touch_cascade": "Touch geometry on the Pixel2Mesh answer (beyond the paper)",
     "smoke": "Ours (smoke, tiny data)",

@@ -271,6 +271,10 @@ class TouchGeometryReconstructor(nn.Module):
             experiment config can null the paper model's entries).
         mode: ``"touch_geometry"``.
         per_touch: contact points kept per touch (:func:`select_patch_points`).
+        view_pass: in training, also run the deformer on the same image features without any touch and return that
+            mesh as ``out["visual"]``, which ``ReconstructionModule(visual_loss_weight=...)`` trains on every sample:
+            one network that must answer a view alone as well as a view with touches (``experiment=
+            touch_geometry_view_pass``). Costs a second deformer pass per step, not a second ResNet. Off in eval.
     """
 
     reads_patches = True
@@ -284,6 +288,7 @@ class TouchGeometryReconstructor(nn.Module):
         fusion: nn.Module | None = None,
         mode: str = "touch_geometry",
         per_touch: int = 64,
+        view_pass: bool = False,
     ) -> None:
         super().__init__()
         if mode != "touch_geometry":
@@ -295,6 +300,7 @@ class TouchGeometryReconstructor(nn.Module):
             )
         self.mode = mode
         self.per_touch = int(per_touch)
+        self.view_pass = bool(view_pass)
         self.visual = visual_backbone if visual_backbone is not None else ResNet18Backbone()
         channels = list(self.visual.channels)
         self.deformer = deformer if deformer is not None else TouchGeometryDeformer(feature_channels=channels)
@@ -302,6 +308,11 @@ class TouchGeometryReconstructor(nn.Module):
             raise ValueError(
                 "deformer must read touch points (a TouchGeometryDeformer or a TouchResidualDeformer), got "
                 f"{type(self.deformer).__name__}"
+            )
+        if self.view_pass and not isinstance(self.deformer, TouchGeometryDeformer):
+            raise ValueError(
+                f"view_pass runs touch geometry's own deformer without touches; {type(self.deformer).__name__} has a "
+                "visual path of its own (out['visual']): set view_pass=false"
             )
 
     def touch_points(
@@ -340,7 +351,8 @@ class TouchGeometryReconstructor(nn.Module):
 
         Returns:
             as :meth:`TactileVisualReconstructor.forward`, plus ``touch`` (camera-frame :class:`TouchPoints`, or None)
-            for the patch training term.
+            for the patch training term; with ``view_pass`` in training also ``visual``: the no-touch answer's output
+            dict on the same features.
         """
         image_size = check_view(image, K, RT)
         patches = (patch_points, patch_normals, patch_mask)
@@ -356,6 +368,8 @@ class TouchGeometryReconstructor(nn.Module):
             x = self.visual.stage(j, x)
             features.append(x)
         out = self.deformer(features, K, image_size, touch)
+        if self.view_pass and self.training and touch is not None and bool(touch.mask.any()):
+            out["visual"] = self.deformer(features, K, image_size, None)  # type: ignore[assignment]
         out["features"] = features
         out["touch"] = touch  # type: ignore[assignment]
         return out
