@@ -30,6 +30,7 @@ from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from tvrecon.models.warm_start import FreezeParameters, load_initial_weights  # noqa: E402
+from tvrecon.report.csv_resume import restore_csv_history  # noqa: E402
 from tvrecon.report.run import (  # noqa: E402  (also importable from train)
     check_model_matches_data,
     exit_on_sigterm,
@@ -172,6 +173,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     if cfg.get("freeze"):
         callbacks.append(FreezeParameters(list(cfg.freeze)))
     loggers = instantiate_loggers(cfg.get("logger"))
+    if ckpt_path is not None:
+        restore_csv_history(loggers, ckpt_path)  # the loss history before the checkpoint stays in csv/metrics.csv
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
     for lg in trainer.loggers:
         lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=False))  # type: ignore[arg-type]
