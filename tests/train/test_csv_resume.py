@@ -30,7 +30,7 @@ def test_rows_before_checkpoint_drops_what_a_cut_off_run_logged_after_it(tmp_pat
         "bad,,1.0,\n"
     )
     ckpt = tmp_path / "last.ckpt"
-    torch.save({"epoch": 1, "global_step": 20}, ckpt)  # the end of epoch 1 (10 steps an epoch)
+    torch.save({"epoch": 1, "global_step": 20, "state_dict": {}}, ckpt)  # the end of epoch 1 (10 steps an epoch)
     kept = rows_before_checkpoint(metrics, ckpt)
     assert [(r.get("epoch"), r["step"]) for r in kept] == [
         (None, "0"),
@@ -40,7 +40,7 @@ def test_rows_before_checkpoint_drops_what_a_cut_off_run_logged_after_it(tmp_pat
         ("1", "19"),
     ]
     assert kept[2] == {"epoch": "0", "step": "9", "val/chamfer": "20.0"}  # empty cells dropped
-    torch.save({"epoch": 1, "global_step": 15}, ckpt)  # a checkpoint in the middle of epoch 1
+    torch.save({"epoch": 1, "global_step": 15, "state_dict": {}}, ckpt)  # a checkpoint in the middle of epoch 1
     assert [r["step"] for r in rows_before_checkpoint(metrics, ckpt)] == ["0", "4", "9", "14"]
     assert rows_before_checkpoint(tmp_path / "missing.csv", ckpt) == []
 

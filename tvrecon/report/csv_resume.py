@@ -15,8 +15,9 @@ import logging
 from collections.abc import Sequence
 from pathlib import Path
 
-import torch
 from lightning.pytorch.loggers import CSVLogger, Logger
+
+from tvrecon.utils.checkpoint import load_checkpoint
 
 __all__ = ["restore_csv_history", "rows_before_checkpoint"]
 
@@ -25,7 +26,7 @@ log = logging.getLogger(__name__)
 
 def _progress(ckpt_path: str | Path) -> tuple[int, int]:
     """(epoch, global_step) stored in a Lightning checkpoint."""
-    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False, mmap=True)
+    ckpt = load_checkpoint(ckpt_path)  # clear error for a missing or truncated file
     return int(ckpt.get("epoch", 0)), int(ckpt.get("global_step", 0))
 
 
