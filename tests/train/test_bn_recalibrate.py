@@ -8,7 +8,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from tvrecon.models.bn_recalibrate import (
+from tvrecon.train.bn_recalibrate import (
     PreciseBatchNorm,
     batchnorm_statistics,
     recalibrate_batchnorm,

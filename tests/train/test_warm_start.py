@@ -10,7 +10,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, TensorDataset
 
-from tvrecon.models.warm_start import FreezeParameters, load_initial_weights
+from tvrecon.train.warm_start import FreezeParameters, load_initial_weights
 from tvrecon.utils.checkpoint import CorruptCheckpointError
 
 

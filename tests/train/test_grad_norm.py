@@ -8,7 +8,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, TensorDataset
 
-from tvrecon.models.grad_norm import GradNormMonitor, total_grad_norm
+from tvrecon.train.grad_norm import GradNormMonitor, total_grad_norm
 
 
 class _Linear(L.LightningModule):
