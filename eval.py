@@ -33,14 +33,13 @@ from tvrecon.report.fused_classifiers import (  # noqa: E402
     fuse_into,
     load_trained_classifier,
 )
+from tvrecon.report.run_report import report_tables, save_results  # noqa: E402
 from tvrecon.report.table_format import Table  # noqa: E402
 from tvrecon.report.tables import data_protocol  # noqa: E402
 from tvrecon.train.run_control import (  # noqa: E402
     check_model_matches_data,
     exit_on_sigterm,
     fix_test_touches,
-    report_tables,
-    save_results,
 )
 from tvrecon.utils.checkpoint import CorruptCheckpointError, load_run  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402

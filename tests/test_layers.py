@@ -3,7 +3,7 @@
 Every ``import`` of every module of :mod:`tvrecon` is read with :mod:`ast`, wherever it stands: at module level, inside
 a function, or under ``if TYPE_CHECKING:`` (a type-only import of a sibling still ties the two modules together).
 
-Layers, bottom to top: ``utils < sim < data < losses, models < robot < report < entry points``. Entry points are the
+Layers, bottom to top: ``utils < sim < data < losses, models < train, robot < report < entry points``. Entry points are the
 command lines (``__main__`` modules), which may use any layer. Inside :mod:`tvrecon.sim` the rooms have their own order:
 ``bodies < mpm < sensor < press``; the package's ``__init__`` and its plots and CLI sit on top of them.
 """
@@ -16,7 +16,7 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "tvrecon"
 
 #: rank of each top-level room (equal ranks may import each other, as long as no cycle forms)
-LAYERS = {"utils": 0, "sim": 1, "data": 2, "losses": 3, "models": 3, "robot": 4, "report": 5}
+LAYERS = {"utils": 0, "sim": 1, "data": 2, "losses": 3, "models": 3, "train": 4, "robot": 4, "report": 5}
 ENTRY = 6
 #: the rooms of tvrecon.sim, bottom to top; the sim package itself (its __init__) and sim modules outside them sit above
 SIM_ROOMS = {"bodies": 0, "mpm": 1, "sensor": 2, "press": 3}

@@ -16,8 +16,8 @@ from tvrecon.report.cls_report import (
     write_classification_plots,
     write_confusion_plots,
 )
+from tvrecon.report.run_report import report_tables
 from tvrecon.report.tables import build_tables
-from tvrecon.train.run_control import report_tables
 
 NAMES = ["cube", "gear", "mug"]
 

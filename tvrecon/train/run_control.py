@@ -1,55 +1,31 @@
-"""Helpers shared by the entry points ``train.py`` and ``eval.py``: test results to ``metrics.json`` and the paper
-tables, the reconstruction test split's touch count, and a SIGTERM that exits 143 naming what to do next.
+"""The run control shared by the entry points ``train.py`` and ``eval.py``: the checkpoint to resume from, a SIGTERM
+that exits 143 naming what to do next, the model/data check and the reconstruction test split's touch count.
+
+The run's results (``metrics.json`` and the paper tables) are written by :mod:`tvrecon.report.run_report`.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 import lightning as L
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, open_dict
-
-from tvrecon.report.cls_report import write_classification_plots
-from tvrecon.report.tables import build_tables, format_tables, write_tables
-from tvrecon.utils.atomic import atomic_write_text
 
 __all__ = [
     "check_model_matches_data",
     "exit_on_sigterm",
     "fix_test_touches",
     "last_checkpoint",
-    "report_tables",
-    "save_results",
 ]
 
 log = logging.getLogger(__name__)
-
-
-def save_results(result: dict[str, Any], out_dir: str | Path) -> Path:
-    """Write a test result dict as ``<out_dir>/metrics.json`` (atomic)."""
-    return atomic_write_text(Path(out_dir) / "metrics.json", json.dumps(result, indent=2, sort_keys=True))
-
-
-def report_tables(results: list[dict[str, Any]], out_dir: str | Path, echo: bool = True) -> str:
-    """Build the paper tables the results allow, write them to ``<out_dir>/tables`` and print them."""
-    tables = build_tables(results)
-    if not tables:
-        return ""
-    paths = write_tables(tables, Path(out_dir) / "tables")
-    plots = write_classification_plots(results, Path(out_dir) / "tables")
-    text = format_tables(tables)
-    if echo:
-        shown = "".join(f"\n(plot: {p})" for p in plots)
-        print("\n" + text + f"\n(tables written to {paths[0].parent})" + shown, flush=True)
-    return text
 
 
 def last_checkpoint(trainer: L.Trainer) -> Path | None:
