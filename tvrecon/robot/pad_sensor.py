@@ -7,9 +7,10 @@ tactile image is returned in the pad's frame (rows along the link's ``up_axis``,
 
 The engine side is three methods: :meth:`PadSensor.link_pose`, :meth:`PadSensor.contact_points` (as
 :class:`ContactPoint`) and :meth:`PadSensor.object_transform` (+ the object meshes in :attr:`PadSensor.objects`).
-``tvrecon.robot.finger.TactileFinger`` implements them for pybullet, ``tvrecon.robot.mujoco_sensor.TactileSensor``
-for MuJoCo; everything else (which presses to run, their caching, one batched solver call for all pads of a step,
-the pad-frame image, force field and world contact patch) lives here once.
+``tvrecon.robot.pybullet.finger.TactileFinger`` implements them for pybullet,
+``tvrecon.robot.mujoco.sensor.TactileSensor`` for MuJoCo; everything else (which presses to run, their caching, one
+batched solver call for all pads of a step, the pad-frame image, force field and world contact patch) lives here
+once.
 
 Presses are cached: the pad is re-simulated only when the contact starts, moves on the object, changes depth by a
 set fraction, or the caller asks (e.g. once per control phase). Without contact the pad is at rest: zero image,

@@ -8,12 +8,13 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 mujoco = pytest.importorskip("mujoco")
 
-from tvrecon.robot.mujoco_camera import RendererUnavailable, depth_to_world  # noqa: E402
-from tvrecon.robot.mujoco_pick_place import run_mujoco_pick_place  # noqa: E402
-from tvrecon.robot.mujoco_pick_place_config import MujocoPickPlaceConfig, resolve_object_mesh  # noqa: E402
-from tvrecon.robot.mujoco_scene import MAX_OPENING, MujocoScene, look_at_xyaxes  # noqa: E402
-from tvrecon.robot.mujoco_task import yaw_for  # noqa: E402
+from tvrecon.robot.mujoco.camera import RendererUnavailable, depth_to_world  # noqa: E402
+from tvrecon.robot.mujoco.pick_place import run_mujoco_pick_place  # noqa: E402
+from tvrecon.robot.mujoco.pick_place_config import MujocoPickPlaceConfig  # noqa: E402
+from tvrecon.robot.mujoco.scene import MAX_OPENING, MujocoScene, look_at_xyaxes  # noqa: E402
+from tvrecon.robot.mujoco.task import yaw_for  # noqa: E402
 from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pick_place_common import resolve_object_mesh  # noqa: E402
 
 
 def test_the_scene_rests_the_object_on_the_table_with_the_gripper_open() -> None:
@@ -87,7 +88,7 @@ def test_no_gl_backend_gives_a_one_line_reason(backend: str) -> None:
     import sys
 
     code = (
-        "from tvrecon.robot.mujoco_camera import RendererUnavailable, mujoco, open_renderer\n"
+        "from tvrecon.robot.mujoco.camera import RendererUnavailable, mujoco, open_renderer\n"
         "m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"0.1\"/></worldbody></mujoco>')\n"
         "try:\n    open_renderer(m, 8, 8)\nexcept RendererUnavailable as err:\n    print('REASON', err)\n"
     )

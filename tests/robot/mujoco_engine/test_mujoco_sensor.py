@@ -9,9 +9,9 @@ import trimesh
 os.environ.setdefault("MUJOCO_GL", "egl")  # mujoco reads it once, at import: keep later rendering tests headless
 mujoco = pytest.importorskip("mujoco")
 
-from tvrecon.robot.mujoco_sensor import TactileSensor, geom_mesh  # noqa: E402
-from tvrecon.robot.pad import sense_pads  # noqa: E402
+from tvrecon.robot.mujoco.sensor import TactileSensor, geom_mesh  # noqa: E402
 from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pad_sensor import sense_pads  # noqa: E402
 
 # a free box (top face at z = 0.01) between two mocap pads; no gravity, so the poses stay as set
 XML = """

@@ -5,8 +5,8 @@ import pybullet as p
 import pytest
 import trimesh
 
-from tvrecon.robot.finger import TactileFinger
 from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pybullet.finger import TactileFinger
 
 pytest.importorskip("tvrecon.sim.press")
 

@@ -5,8 +5,9 @@ import pybullet as p
 import pytest
 import trimesh
 
-from tvrecon.robot.perception import CameraConfig, RGBDCamera, depth_to_points, plan_top_grasp
-from tvrecon.robot.scene import Scene, SceneConfig
+from tvrecon.robot.grasp import plan_top_grasp
+from tvrecon.robot.pybullet.camera import CameraConfig, RGBDCamera, depth_to_points
+from tvrecon.robot.pybullet.scene import Scene, SceneConfig
 
 
 def _box_cloud(w: float, l: float, h: float, yaw: float, centre=(0.5, -0.1), table=0.6, n=4000) -> np.ndarray:

@@ -8,11 +8,11 @@ import trimesh
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from tvrecon.robot.controller import PHASES
-from tvrecon.robot.pick_place import load_object_mesh, run_pick_place
-from tvrecon.robot.pick_place_config import PickPlaceConfig
+from tvrecon.robot.pick_place_common import PHASES, load_object_mesh
+from tvrecon.robot.pybullet.pick_place import run_pick_place
+from tvrecon.robot.pybullet.pick_place_config import PickPlaceConfig
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
+CONFIG_DIR = str(Path(__file__).resolve().parents[3] / "configs" / "robot")
 
 
 def test_hydra_config_composes_into_dataclass() -> None:
@@ -75,7 +75,7 @@ def test_cli_exit_status_follows_the_outcome(success: bool, tmp_path, monkeypatc
     import sys
     from types import SimpleNamespace
 
-    import tvrecon.robot.pick_place as pp
+    import tvrecon.robot.pybullet.pick_place as pp
 
     fake = SimpleNamespace(
         success=success, message="fake", log_path=None, gif_path=None, mp4_path=None, strip_path=None,

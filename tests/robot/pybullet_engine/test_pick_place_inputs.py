@@ -14,11 +14,11 @@ import trimesh
 
 pytest.importorskip("pybullet")
 
-PROG = "python -m tvrecon.robot.pick_place"
+PROG = "python -m tvrecon.robot.pybullet.pick_place"
 
 
 def _run_cli(obj: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> str:
-    import tvrecon.robot.pick_place as pp
+    import tvrecon.robot.pybullet.pick_place as pp
 
     argv = ["pick_place", f"object={obj}", f"out_dir={tmp_path / 'out'}", f"hydra.run.dir={tmp_path / 'hydra'}"]
     monkeypatch.setattr(sys, "argv", argv)
@@ -60,7 +60,7 @@ def test_unknown_class_name_still_lists_the_classes(tmp_path: Path, monkeypatch:
 
 
 def test_ctrl_c_exits_130_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
-    import tvrecon.robot.pick_place as pp
+    import tvrecon.robot.pybullet.pick_place as pp
 
     def interrupted(cfg: object) -> None:
         raise KeyboardInterrupt

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from tvrecon.data.shapes import make_shape
-from tvrecon.robot.controller import PHASES
 from tvrecon.robot.pad_config import PadConfig
-from tvrecon.robot.pick_place import run_pick_place
-from tvrecon.robot.pick_place_config import PickPlaceConfig
-from tvrecon.robot.scene import SceneConfig
+from tvrecon.robot.pick_place_common import PHASES
+from tvrecon.robot.pybullet.pick_place import run_pick_place
+from tvrecon.robot.pybullet.pick_place_config import PickPlaceConfig
+from tvrecon.robot.pybullet.scene import SceneConfig
 
 pytest.importorskip("tvrecon.sim.press")
 

@@ -5,7 +5,8 @@ import pybullet as p
 import pytest
 import trimesh
 
-from tvrecon.robot.scene import PANDA_FINGER_LINKS, Scene, SceneConfig, prepare_object_mesh
+from tvrecon.robot.pick_place_common import prepare_object_mesh
+from tvrecon.robot.pybullet.scene import PANDA_FINGER_LINKS, Scene, SceneConfig
 
 
 def test_prepare_object_mesh_scales_and_centres() -> None:

@@ -2,14 +2,14 @@
 
 Run (headless; ``MUJOCO_GL=egl`` is set when unset)::
 
-    python -m tvrecon.robot.mujoco_pick_place object=can
-    python -m tvrecon.robot.mujoco_pick_place object=duck          # pybullet_data's duck.obj
-    python -m tvrecon.robot.mujoco_pick_place object=/path/to/mesh.obj scene.object_size=0.06
+    python -m tvrecon.robot.mujoco.pick_place object=can
+    python -m tvrecon.robot.mujoco.pick_place object=duck          # pybullet_data's duck.obj
+    python -m tvrecon.robot.mujoco.pick_place object=/path/to/mesh.obj scene.object_size=0.06
 
 The object is found in the scene's own rendered RGB-D + segmentation image (MuJoCo's offscreen renderer; no
-ground-truth pose), the grasp is planned from that point cloud (``tvrecon.robot.perception.plan_top_grasp``, as in
-the pybullet demo), the gripper (``tvrecon.robot.mujoco_scene``) follows straight Cartesian lines, and each pad's
-:class:`~tvrecon.robot.mujoco_sensor.TactileSensor` turns MuJoCo's contacts into EIP tactile images, both pads in
+ground-truth pose), the grasp is planned from that point cloud (``tvrecon.robot.grasp.plan_top_grasp``, as in
+the pybullet demo), the gripper (``tvrecon.robot.mujoco.scene``) follows straight Cartesian lines, and each pad's
+:class:`~tvrecon.robot.mujoco.sensor.TactileSensor` turns MuJoCo's contacts into EIP tactile images, both pads in
 one batched solver call. Where MuJoCo cannot render (no EGL) the run says so in one line, plans the grasp from the
 model's object geometry and writes the strip with blank scene frames and no video.
 
@@ -17,8 +17,8 @@ Writes ``mujoco_pick_place.gif`` / ``.mp4``, ``mujoco_pick_place_strip.png`` and
 log keys of the pybullet demo, drawn by ``tvrecon.robot.strip``). Needs the ``[mujoco]`` and ``[robot]`` extras.
 
 This module is the driver: :func:`run_mujoco_pick_place` (the Python API), the log and outputs, the Hydra command
-line. The configuration, outcome and object lookup are :mod:`tvrecon.robot.mujoco_pick_place_config`; the run itself
-(scene, pads, cameras, motions, the task's phases) is :mod:`tvrecon.robot.mujoco_task`.
+line. The configuration, outcome and object lookup are :mod:`tvrecon.robot.mujoco.pick_place_config`; the run itself
+(scene, pads, cameras, motions, the task's phases) is :mod:`tvrecon.robot.mujoco.task`.
 """
 
 from __future__ import annotations
@@ -35,16 +35,13 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
-# mujoco_camera first: it imports mujoco with the fallback to MUJOCO_GL=disable where the backend has no OpenGL library
-import tvrecon.robot.mujoco_camera  # noqa: E402, F401
-from tvrecon.robot.controller import PHASES  # noqa: E402
-from tvrecon.robot.mujoco_pick_place_config import (  # noqa: E402
-    MujocoPickPlaceConfig,
-    MujocoPickPlaceResult,
-    resolve_object_mesh,
-)
-from tvrecon.robot.mujoco_task import PickPlaceRun, execute  # noqa: E402
-from tvrecon.robot.perception import GraspPlan  # noqa: E402
+# the camera module first: it imports mujoco with the fallback to MUJOCO_GL=disable where the backend has no OpenGL
+# library
+import tvrecon.robot.mujoco.camera  # noqa: E402, F401
+from tvrecon.robot.grasp import GraspPlan  # noqa: E402
+from tvrecon.robot.mujoco.pick_place_config import MujocoPickPlaceConfig, MujocoPickPlaceResult  # noqa: E402
+from tvrecon.robot.mujoco.task import PickPlaceRun, execute  # noqa: E402
+from tvrecon.robot.pick_place_common import PHASES, resolve_object_mesh  # noqa: E402
 from tvrecon.utils.atomic import atomic_open  # noqa: E402
 
 __all__ = ["collect_log", "run_mujoco_pick_place", "main"]
@@ -53,7 +50,7 @@ __all__ = ["collect_log", "run_mujoco_pick_place", "main"]
 def collect_log(run: PickPlaceRun, plan: GraspPlan | None, outcome: tuple, cfg: MujocoPickPlaceConfig) -> dict:
     """The run's log, the pybullet demo's keys (``tvrecon.robot.strip`` draws it): per logged frame (T frames) the
     step, time, phase, object and grasp-point poses, finger positions, both pads' readings and the (T, H, W, 3) uint8
-    scene frames; then the outcome (``outcome``: :func:`~tvrecon.robot.mujoco_task.execute`'s tuple), the object
+    scene frames; then the outcome (``outcome``: :func:`~tvrecon.robot.mujoco.task.execute`'s tuple), the object
     mesh, the pad, the grasp ``plan`` and the perception camera's RGB-D + segmentation shot."""
     success, message, reached, _, err = outcome
     recs = run.records
@@ -144,7 +141,7 @@ def _hydra_entry() -> None:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import DictConfig, OmegaConf
 
-    config_dir = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
+    config_dir = str(Path(__file__).resolve().parents[3] / "configs" / "robot")
     outcome: dict[str, bool] = {}
 
     @hydra.main(version_base="1.3", config_path=config_dir, config_name="mujoco_pick_place")
@@ -164,7 +161,7 @@ def _hydra_entry() -> None:
 
 
 def main() -> None:
-    """Console entry point (Hydra): ``python -m tvrecon.robot.mujoco_pick_place object=can``; exit 1 on [FAILED]."""
+    """Console entry point (Hydra): ``python -m tvrecon.robot.mujoco.pick_place object=can``; exit 1 on [FAILED]."""
     _hydra_entry()
 
 

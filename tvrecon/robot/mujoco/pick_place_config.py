@@ -1,4 +1,4 @@
-"""The configuration of the MuJoCo pick-and-place demo (:mod:`tvrecon.robot.mujoco_pick_place`), its outcome, and
+"""The configuration of the MuJoCo pick-and-place demo (:mod:`tvrecon.robot.mujoco.pick_place`), its outcome, and
 the object it names (a library class, a ``pybullet_data`` mesh or a mesh file)."""
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from tvrecon.robot.mujoco_scene import MujocoSceneConfig
+from tvrecon.robot.grasp import GraspPlan
+from tvrecon.robot.mujoco.scene import MujocoSceneConfig
 from tvrecon.robot.pad_config import PadConfig
-from tvrecon.robot.perception import GraspPlan
 from tvrecon.utils.config_utils import coerce_config
 
-__all__ = ["MujocoCameraConfig", "MujocoPickPlaceConfig", "MujocoPickPlaceResult", "resolve_object_mesh"]
+__all__ = ["MujocoCameraConfig", "MujocoPickPlaceConfig", "MujocoPickPlaceResult"]
 
 
 @dataclass
@@ -90,21 +90,3 @@ class MujocoPickPlaceResult:
     wall_time: float
     num_presses: int
     rendered: bool
-
-
-def resolve_object_mesh(name_or_path: str, seed: int = 0) -> trimesh.Trimesh:
-    """A library class (``make_shape``), a ``pybullet_data`` mesh by name (``duck`` -> ``duck.obj``) or a mesh file."""
-    from tvrecon.data.shapes import CLASSES
-    from tvrecon.robot.pick_place import load_object_mesh
-
-    name = str(name_or_path)
-    if name not in CLASSES and not Path(name).suffix:
-        try:
-            import pybullet_data
-        except ImportError:
-            pybullet_data = None
-        if pybullet_data is not None:
-            path = Path(pybullet_data.getDataPath()) / f"{name}.obj"
-            if path.exists():
-                return load_object_mesh(str(path), seed)
-    return load_object_mesh(name, seed)

@@ -22,7 +22,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-from tvrecon.robot.scene import prepare_object_mesh  # noqa: E402
+from tvrecon.robot.pick_place_common import prepare_object_mesh  # noqa: E402
 
 __all__ = [
     "FINGER_HALF",
@@ -236,7 +236,7 @@ class MujocoScene:
 
     def object_mesh_world(self) -> trimesh.Trimesh:
         """The object's mesh geom surface in world coordinates (a new trimesh)."""
-        from tvrecon.robot.mujoco_sensor import geom_mesh
+        from tvrecon.robot.mujoco.sensor import geom_mesh
 
         T = np.eye(4)
         T[:3, :3] = np.asarray(self.data.geom_xmat[self.object_geom]).reshape(3, 3)

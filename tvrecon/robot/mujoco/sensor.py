@@ -3,7 +3,7 @@
 Attach it like TACTO's ``add_body``: give the model, its data and the pad's geom (or body)::
 
     import mujoco
-    from tvrecon.robot.mujoco_sensor import TactileSensor, sense_pads
+    from tvrecon.robot.mujoco.sensor import TactileSensor, sense_pads
 
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
@@ -18,7 +18,7 @@ Each call reads ``data.contact`` for the pad's geoms (normal force from ``mj_con
 ``dist``), picks the touched geom with the largest force and presses *that geom's own surface*: the model's mesh
 asset (``mesh_vert`` / ``mesh_face``; the full mesh, not the convex hull MuJoCo collides with) or a trimesh of the
 primitive (box, sphere, capsule, cylinder, ellipsoid, plane), at its current pose. The press, its caching and the
-batching are :class:`tvrecon.robot.pad.PadSensor`'s, shared with the pybullet ``TactileFinger``. Without contact
+batching are :class:`tvrecon.robot.pad_sensor.PadSensor`'s, shared with the pybullet ``TactileFinger``. Without contact
 the reading is the rest reading (no simulation).
 """
 
@@ -30,9 +30,9 @@ import mujoco
 import numpy as np
 import trimesh
 
-from tvrecon.robot.pad import PadSensor
 from tvrecon.robot.pad_config import PadConfig
 from tvrecon.robot.pad_reading import ContactPoint
+from tvrecon.robot.pad_sensor import PadSensor
 
 __all__ = ["TactileSensor", "geom_mesh"]
 

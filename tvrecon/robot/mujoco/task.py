@@ -1,10 +1,10 @@
-"""One pick-and-place in MuJoCo, step by step (the demo's driver is :mod:`tvrecon.robot.mujoco_pick_place`).
+"""One pick-and-place in MuJoCo, step by step (the demo's driver is :mod:`tvrecon.robot.mujoco.pick_place`).
 
-:class:`PickPlaceRun` holds the scene (:mod:`tvrecon.robot.mujoco_scene`), the two pads'
-:class:`~tvrecon.robot.mujoco_sensor.TactileSensor` sharing one EIP solver, the cameras and the per-frame log, and
+:class:`PickPlaceRun` holds the scene (:mod:`tvrecon.robot.mujoco.scene`), the two pads'
+:class:`~tvrecon.robot.mujoco.sensor.TactileSensor` sharing one EIP solver, the cameras and the per-frame log, and
 moves the floating gripper along straight Cartesian lines; :func:`plan_grasp` finds the object in the scene's rendered
 RGB-D + segmentation image (or, without a renderer, the model's geometry) and plans the top grasp
-(``tvrecon.robot.perception.plan_top_grasp``); :func:`execute` runs the phases (approach, contact, squeeze, lift,
+(``tvrecon.robot.grasp.plan_top_grasp``); :func:`execute` runs the phases (approach, contact, squeeze, lift,
 carry, place, release) and says where and why a run failed.
 """
 
@@ -14,14 +14,14 @@ import numpy as np
 import trimesh
 from tqdm.auto import tqdm
 
-from tvrecon.robot.controller import PHASES
-from tvrecon.robot.mujoco_camera import MujocoCamera, RendererUnavailable
-from tvrecon.robot.mujoco_pick_place_config import MujocoPickPlaceConfig
-from tvrecon.robot.mujoco_scene import FINGER_HALF, MAX_OPENING, MujocoScene
-from tvrecon.robot.mujoco_sensor import TactileSensor
-from tvrecon.robot.pad import LazySimulator, sense_pads
+from tvrecon.robot.grasp import GraspPlan, plan_top_grasp
+from tvrecon.robot.mujoco.camera import MujocoCamera, RendererUnavailable
+from tvrecon.robot.mujoco.pick_place_config import MujocoPickPlaceConfig
+from tvrecon.robot.mujoco.scene import FINGER_HALF, MAX_OPENING, MujocoScene
+from tvrecon.robot.mujoco.sensor import TactileSensor
 from tvrecon.robot.pad_reading import FingerReading, reading_record
-from tvrecon.robot.perception import GraspPlan, plan_top_grasp
+from tvrecon.robot.pad_sensor import LazySimulator, sense_pads
+from tvrecon.robot.pick_place_common import PHASES
 
 __all__ = ["PickPlaceRun", "execute", "plan_grasp", "yaw_for"]
 

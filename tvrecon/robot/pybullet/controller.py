@@ -1,9 +1,9 @@
 """The arm and gripper of the pick-and-place demo: Cartesian moves through IK, the gripper motor, the per-frame log.
 
-:class:`ArmController` drives the Panda of a :class:`~tvrecon.robot.scene.Scene` through pybullet (joint position
-control of the IK solution along straight lines of the grasp point) and records, every ``frame_every`` simulation
-steps, the object and hand poses, both fingers' tactile readings and a rendered frame.
-:mod:`tvrecon.robot.pick_place` sequences the task's phases with it.
+:class:`ArmController` drives the Panda of a :class:`~tvrecon.robot.pybullet.scene.Scene` through pybullet (joint
+position control of the IK solution along straight lines of the grasp point) and records, every ``frame_every``
+simulation steps, the object and hand poses, both fingers' tactile readings and a rendered frame.
+:mod:`tvrecon.robot.pybullet.pick_place` sequences the task's phases with it.
 """
 
 from __future__ import annotations
@@ -12,10 +12,11 @@ import numpy as np
 import pybullet as p
 from tqdm.auto import tqdm
 
-from tvrecon.robot.finger import TactileFinger, sense_fingers
 from tvrecon.robot.pad_reading import FingerReading, reading_record
-from tvrecon.robot.pick_place_config import PickPlaceConfig
-from tvrecon.robot.scene import (
+from tvrecon.robot.pick_place_common import PHASES
+from tvrecon.robot.pybullet.finger import TactileFinger, sense_fingers
+from tvrecon.robot.pybullet.pick_place_config import PickPlaceConfig
+from tvrecon.robot.pybullet.scene import (
     PANDA_ARM_JOINTS,
     PANDA_FINGER_JOINTS,
     PANDA_GRASP_LINK,
@@ -24,9 +25,8 @@ from tvrecon.robot.scene import (
     Scene,
 )
 
-__all__ = ["PHASES", "ArmController", "hand_orientation"]
+__all__ = ["ArmController", "hand_orientation"]
 
-PHASES = ("approach", "contact", "squeeze", "lift", "carry", "place", "release")
 _ARM_FORCES = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 _LOWER = [-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671, 0.0, 0.0]
 _UPPER = [2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671, 0.04, 0.04]

@@ -3,8 +3,8 @@
 At each :meth:`TactileFinger.sense` the link's pybullet contacts with registered objects (getContactPoints:
 position on the object, normal, penetration, normal force) set up an EIP press of the pad against the object's own
 mesh at its current pose (body frame -> world). The engine-independent part (which press to run, caching, the
-batched solver call, the pad-frame image, force field and contact patch) is :class:`tvrecon.robot.pad.PadSensor`,
-shared with the MuJoCo sensor (``tvrecon.robot.mujoco_sensor``); this module is the pybullet side.
+batched solver call, the pad-frame image, force field and contact patch) is :class:`tvrecon.robot.pad_sensor.PadSensor`,
+shared with the MuJoCo sensor (``tvrecon.robot.mujoco.sensor``); this module is the pybullet side.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as p
 
-from tvrecon.robot.pad import PadSensor, sense_pads
 from tvrecon.robot.pad_config import PadConfig
 from tvrecon.robot.pad_reading import ContactPoint, FingerReading
+from tvrecon.robot.pad_sensor import PadSensor, sense_pads
 
 __all__ = ["TactileFinger", "sense_fingers"]
 
@@ -89,5 +89,5 @@ class TactileFinger(PadSensor):
 
 
 def sense_fingers(fingers: Sequence[TactileFinger], refresh: bool = False) -> list[FingerReading]:
-    """Read several fingers at the current step, their presses batched (:func:`tvrecon.robot.pad.sense_pads`)."""
+    """Read several fingers at the current step, their presses batched (:func:`tvrecon.robot.pad_sensor.sense_pads`)."""
     return sense_pads(fingers, refresh=refresh)

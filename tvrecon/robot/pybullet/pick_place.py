@@ -2,18 +2,18 @@
 
 Run::
 
-    python -m tvrecon.robot.pick_place object=can
-    python -m tvrecon.robot.pick_place object=/path/to/mesh.obj scene.object_size=0.09 out_dir=outputs/robot_mesh
+    python -m tvrecon.robot.pybullet.pick_place object=can
+    python -m tvrecon.robot.pybullet.pick_place object=/path/to/mesh.obj scene.object_size=0.09 \
+        out_dir=outputs/robot_mesh
 
 The object is located from the scene's own RGB-D + segmentation camera (no ground-truth pose), the grasp is
 planned from that point cloud, the arm follows Cartesian waypoints through pybullet's inverse kinematics, and each
-finger's :class:`~tvrecon.robot.finger.TactileFinger` turns its pybullet contacts into EIP tactile images in
+finger's :class:`~tvrecon.robot.pybullet.finger.TactileFinger` turns its pybullet contacts into EIP tactile images in
 every control phase. Writes ``pick_place.gif``, ``pick_place_strip.png`` and ``pick_place_log.npz``.
 """
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from dataclasses import dataclass
@@ -21,19 +21,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import trimesh
 from tqdm.auto import tqdm
 
-from tvrecon.robot.controller import PHASES, ArmController, hand_orientation
-from tvrecon.robot.finger import TactileFinger
-from tvrecon.robot.pad import LazySimulator
-from tvrecon.robot.perception import GraspPlan, RGBDCamera, plan_top_grasp
-from tvrecon.robot.pick_place_config import PickPlaceConfig
-from tvrecon.robot.scene import PANDA_FINGER_LINKS, PANDA_MAX_OPENING, Scene
+from tvrecon.robot.grasp import GraspPlan, plan_top_grasp
+from tvrecon.robot.pad_sensor import LazySimulator
+from tvrecon.robot.pick_place_common import PHASES, load_object_mesh
+from tvrecon.robot.pybullet.camera import RGBDCamera
+from tvrecon.robot.pybullet.controller import ArmController, hand_orientation
+from tvrecon.robot.pybullet.finger import TactileFinger
+from tvrecon.robot.pybullet.pick_place_config import PickPlaceConfig
+from tvrecon.robot.pybullet.scene import PANDA_FINGER_LINKS, PANDA_MAX_OPENING, Scene
 from tvrecon.utils.atomic import atomic_open
-from tvrecon.utils.geometry import read_mesh_file
 
-__all__ = ["PickPlaceResult", "load_object_mesh", "run_pick_place", "main"]
+__all__ = ["PickPlaceResult", "run_pick_place", "main"]
 
 PANDA_PAD_CENTER = (0.0, 0.0, 0.044)  # centre of the flat inner face of panda's finger collision mesh (link frame)
 
@@ -53,23 +53,6 @@ class PickPlaceResult:
     wall_time: float
     num_presses: int
     mp4_path: Path | None = None
-
-
-def load_object_mesh(name_or_path: str, seed: int = 0) -> trimesh.Trimesh:
-    """A procedural class (``tvrecon.data.shapes.make_shape``) or a mesh file (anything ``trimesh.load`` reads)."""
-    path = Path(str(name_or_path)).expanduser()
-    mesh_suffix = path.suffix.lower().lstrip(".") in trimesh.available_formats()
-    if path.suffix and (path.exists() or os.sep in str(name_or_path) or mesh_suffix):
-        if not path.exists():  # `object=mug.obj` is a file name, not an unknown shape class
-            raise ValueError(
-                f"object mesh file {str(path)!r} does not exist (in {Path.cwd()}): pass an existing mesh path "
-                f"or a class name"
-            )
-        # unreadable bytes and NaN vertices are named here (trimesh would say "charset_normalizer" / drop them)
-        return read_mesh_file(path, "object mesh file")
-    from tvrecon.data.shapes import make_shape
-
-    return make_shape(str(name_or_path), seed=seed)
 
 
 def _atomic_savez(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -295,7 +278,7 @@ def _collect_log(
     return log
 
 
-PROG = "python -m tvrecon.robot.pick_place"
+PROG = "python -m tvrecon.robot.pybullet.pick_place"
 
 
 def _hydra_entry() -> None:
@@ -305,7 +288,7 @@ def _hydra_entry() -> None:
 
     from tvrecon.utils.cli_errors import hydra_task
 
-    config_dir = str(Path(__file__).resolve().parents[2] / "configs" / "robot")
+    config_dir = str(Path(__file__).resolve().parents[3] / "configs" / "robot")
 
     outcome: dict[str, bool] = {}
 
@@ -329,7 +312,7 @@ def _hydra_entry() -> None:
 
 
 def main() -> None:
-    """Console entry point (Hydra): ``python -m tvrecon.robot.pick_place object=can``.
+    """Console entry point (Hydra): ``python -m tvrecon.robot.pybullet.pick_place object=can``.
 
     Exits with status 1 when the run ends ``[FAILED]`` (the log, gif and strip are still written), 0 on ``[OK]``;
     bad input (a missing or unreadable mesh, a wrong option) is one line on stderr and exit status 2, Ctrl-C 130

@@ -1,5 +1,5 @@
-"""The configuration of the pybullet pick-and-place demo (:mod:`tvrecon.robot.pick_place`), read by its arm
-controller too (:mod:`tvrecon.robot.controller`)."""
+"""The configuration of the pybullet pick-and-place demo (:mod:`tvrecon.robot.pybullet.pick_place`), read by its arm
+controller too (:mod:`tvrecon.robot.pybullet.controller`)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import trimesh
 
 from tvrecon.robot.pad_config import PadConfig
-from tvrecon.robot.perception import CameraConfig
-from tvrecon.robot.scene import SceneConfig
+from tvrecon.robot.pybullet.camera import CameraConfig
+from tvrecon.robot.pybullet.scene import SceneConfig
 from tvrecon.utils.config_utils import coerce_config
 
 __all__ = ["PickPlaceConfig"]

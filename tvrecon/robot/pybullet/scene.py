@@ -1,9 +1,10 @@
 """The pybullet world of the pick-and-place demo: floor, table, Franka Panda and an object built from a mesh.
 
 Everything runs in a headless ``pybullet.DIRECT`` client owned by :class:`Scene`. Units are SI (metres, kg, N).
-The object is a pybullet body whose base frame is the mesh's own frame after :func:`prepare_object_mesh` (scaled to
-a real size, centred on its centre of mass), so ``mesh.apply_transform(scene.object_transform())`` is the object's
-surface in world coordinates at the current simulation step.
+The object is a pybullet body whose base frame is the mesh's own frame after
+:func:`~tvrecon.robot.pick_place_common.prepare_object_mesh` (scaled to a real size, centred on its centre of mass),
+so ``mesh.apply_transform(scene.object_transform())`` is the object's surface in world coordinates at the current
+simulation step.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import pybullet as p
 import pybullet_data
 import trimesh
 
-from tvrecon.utils.geometry import check_mesh
+from tvrecon.robot.pick_place_common import prepare_object_mesh
 
 __all__ = [
     "PANDA_ARM_JOINTS",
@@ -32,7 +33,6 @@ __all__ = [
     "PANDA_MAX_OPENING",
     "SceneConfig",
     "Scene",
-    "prepare_object_mesh",
     "collision_shape_for_mesh",
 ]
 
@@ -73,29 +73,6 @@ class SceneConfig:
     convex_tolerance: float = 0.85  # volume / hull volume above this -> use the convex hull, else V-HACD
     vhacd_resolution: int = 200_000
     cache_dir: str | None = None  # where V-HACD decompositions are kept (None -> a temp dir)
-
-
-def prepare_object_mesh(mesh: trimesh.Trimesh, size: float) -> trimesh.Trimesh:
-    """Scale a mesh so its longest bounding-box side is ``size`` metres and move its centre of mass to the origin.
-
-    Args:
-        mesh: any trimesh (V vertices, F faces); procedural shapes are unit-box normalized, user meshes any scale.
-        size: target longest side in metres (> 0).
-
-    Returns:
-        A new trimesh in the object's body frame (vertices (V,3) float64 in metres, centre of mass at 0).
-    """
-    check_mesh(mesh, "object mesh")
-    if not size > 0:
-        raise ValueError(f"object size must be > 0 metres, got {size}")
-    m = mesh.copy()
-    extent = float(np.max(m.extents))
-    if extent <= 0:
-        raise ValueError("object mesh has zero extent: all vertices coincide")
-    m.apply_scale(size / extent)
-    centre = m.center_mass if m.is_volume else m.bounds.mean(axis=0)
-    m.apply_translation(-np.asarray(centre))
-    return m
 
 
 @contextlib.contextmanager
