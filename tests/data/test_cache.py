@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from tvrecon.data.cache import CACHE_VERSION, SampleCache, cache_key, canonical_json
+from tvrecon.data.cache.store import CACHE_VERSION, SampleCache, cache_key, canonical_json
 
 
 @dataclasses.dataclass
@@ -95,7 +95,7 @@ def test_corrupt_entry_is_warned_and_regenerated(tmp_path: Path, caplog, damage:
         calls.append(1)
         return data
 
-    with caplog.at_level(logging.WARNING, logger="tvrecon.data.cache"):
+    with caplog.at_level(logging.WARNING, logger="tvrecon.data.cache.store"):
         out, hit = cache.get_or_create(_spec(), make)
     assert not hit and calls == [1]
     assert any(str(path) in r.getMessage() and "corrupt" in r.getMessage() for r in caplog.records)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tvrecon.data.cache_housekeeping import job_start_time, remove_stale_tmp, uncached_items
+from tvrecon.data.cache.housekeeping import job_start_time, remove_stale_tmp, uncached_items
 from tvrecon.data.datamodule import ReconstructionDataModule
 
 
@@ -37,7 +37,7 @@ def test_datamodule_setup_cleans_the_cache_and_announces_the_on_the_fly_touches(
 ) -> None:
     stale = _file(tmp_path / "ab" / ".abcdef012345-x1.tmp", 7200)
     dm = ReconstructionDataModule(train={"num_samples": 3}, cache_dir=tmp_path, min_touches=2, max_touches=2)
-    with caplog.at_level(logging.INFO, logger="tvrecon.data.cache_housekeeping"):
+    with caplog.at_level(logging.INFO, logger="tvrecon.data.cache.housekeeping"):
         dm.setup("fit")
     assert not stale.exists()
     assert "removed 1 stale temporary file(s)" in caplog.text

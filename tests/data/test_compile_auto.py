@@ -11,8 +11,8 @@ import pytest
 from hydra.utils import instantiate
 from tiny_press import TINY_PRESS
 
-from tvrecon.data.generate import pregenerate
-from tvrecon.data.generated_dataset import GeneratedDataset
+from tvrecon.data.dataset_base import GeneratedDataset
+from tvrecon.data.generation.pool import pregenerate
 from tvrecon.data.presets import compose_preset
 from tvrecon.sim.mpm.compiled import policy
 

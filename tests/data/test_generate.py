@@ -5,8 +5,9 @@ from pathlib import Path
 import pytest
 from tiny_press import TINY_PRESS
 
-from tvrecon.data.generate import main, pregenerate, shard_indices
-from tvrecon.data.generate_args import parse_shard, parse_splits
+from tvrecon.data.generate import main
+from tvrecon.data.generation.args import parse_shard, parse_splits
+from tvrecon.data.generation.pool import pregenerate, shard_indices
 from tvrecon.data.presets import compose_preset
 
 ARGS = [
@@ -106,7 +107,7 @@ def test_parallel_workers(tmp_path: Path):
     assert serial.generated == 3
     import numpy as np
 
-    from tvrecon.data.cache import SampleCache
+    from tvrecon.data.cache.store import SampleCache
 
     a = sorted(p.stem for p in tmp_path.glob("??/*.npz"))
     assert a == sorted(p.stem for p in (tmp_path / "serial").glob("??/*.npz"))
@@ -119,20 +120,20 @@ def test_parallel_workers(tmp_path: Path):
 def test_every_split_in_one_pool(tmp_path: Path, monkeypatch, capsys):
     """``workers=2`` over three splits starts one pool, not one per split (each pool start cost ~25 s and a split's
     tail on one worker); every split's entries are written and the run's rate is printed once."""
-    from tvrecon.data import generate
+    from tvrecon.data.generation import pool
 
     pools = []
-    real = generate._pool_generate
+    real = pool._pool_generate
 
     def spy(sets, todo, workers, desc):
         pools.append(sorted({k for k, _ in todo}))
         yield from real(sets, todo, workers, desc)
 
-    monkeypatch.setattr(generate, "_pool_generate", spy)
+    monkeypatch.setattr(pool, "_pool_generate", spy)
     stats = main(ARGS + [f"cache_dir={tmp_path}", "workers=2"])
     assert pools == [[0, 1, 2]]
     assert [s.generated for s in stats] == [3, 1, 1] and len(list(tmp_path.glob("*/*.npz"))) == 5
-    assert max(s.seconds for s in stats) == generate.combined(stats).seconds > 0
+    assert max(s.seconds for s in stats) == pool.combined(stats).seconds > 0
     out = capsys.readouterr().out
     assert "[train, val, test] 5 items generated: 10 touches in" in out and "done" in out
 
@@ -172,7 +173,7 @@ def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, 
     import pickle
 
     from tvrecon.data import generate
-    from tvrecon.data.cache import cache_key
+    from tvrecon.data.cache.store import cache_key
 
     seen = []
 
@@ -202,7 +203,7 @@ def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, 
 def test_export_copies_the_presets_entries_and_they_read_as_cached(tmp_path: Path, capsys) -> None:
     from hydra.utils import instantiate
 
-    from tvrecon.data.cache_export import export_entries
+    from tvrecon.data.cache.export import export_entries
 
     cache, dest = tmp_path / "shared", tmp_path / "export"
     main(ARGS + [f"cache_dir={cache}", "workers=1"])  # every split in the shared cache: 5 entries
@@ -224,8 +225,8 @@ def test_an_item_that_fails_is_named_and_what_was_done_stays_cached(tmp_path: Pa
     """An error while generating an item names the split, the item and its object: the same type for Python's own
     exceptions (a FloatingPointError of a press that diverged stays one), ItemFailed for others; the items finished
     before it stay cached and the same command goes on from them."""
-    from tvrecon.data import generate
-    from tvrecon.data.generated_dataset import GeneratedDataset
+    from tvrecon.data.dataset_base import GeneratedDataset
+    from tvrecon.data.generation import pool
 
     args = ARGS + [f"cache_dir={tmp_path}", "workers=1", "splits=train"]
     raw = GeneratedDataset.raw
@@ -242,7 +243,7 @@ def test_an_item_that_fails_is_named_and_what_was_done_stays_cached(tmp_path: Pa
             return raw(self, index)
 
         monkeypatch.setattr(GeneratedDataset, "raw", failing)
-        want = kind or generate.ItemFailed
+        want = kind or pool.ItemFailed
         with pytest.raises(want, match=r"split 'train' item 1 \(\w+, instance \d+\)") as info:
             main(args)
         assert info.value.__cause__ is err and str(err) in str(info.value)

@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from tiny_press import TINY_PRESS
 
 from tvrecon.data.generate import main
-from tvrecon.data.generate_launcher import APP_CONFIG_DIR, hydra_arguments
+from tvrecon.data.generation.launcher import APP_CONFIG_DIR, hydra_arguments
 
 ARGS = [  # 3 train items of 2 touches on a coarse grid (tests/data/test_generate.py's preset)
     "preset=cls_tiny",
@@ -74,7 +74,7 @@ def test_a_job_gets_compile_as_its_press_config() -> None:
     """A multirun's `compile=true` reaches each job's command line, which makes it the data-config override
     `press.compile=true` (the job's worker processes get it with their datasets, not from the environment)."""
     from tvrecon.data.generate import _compile_override
-    from tvrecon.data.generate_launcher import job_arguments
+    from tvrecon.data.generation.launcher import job_arguments
 
     app = OmegaConf.load(APP_CONFIG_DIR / "generate.yaml")
     for value, expected in ((True, ["press.compile=true"]), (False, ["press.compile=false"]), (None, [])):

@@ -122,7 +122,7 @@ def test_ctrl_c_with_workers_exits_130_with_the_resume_hint_in_one_line(tmp_path
 
 
 class _Exited:
-    """A finished worker process as :func:`tvrecon.data.generate._dead_worker_message` reads it."""
+    """A finished worker process as :func:`tvrecon.data.generation.pool._dead_worker_message` reads it."""
 
     def __init__(self, pid: int, exitcode: int) -> None:
         self.pid, self.exitcode = pid, exitcode
@@ -132,7 +132,7 @@ class _Exited:
 
 
 def test_the_message_names_the_killed_worker_before_one_that_failed_as_the_pool_broke() -> None:
-    from tvrecon.data.generate import _dead_worker_message
+    from tvrecon.data.generation.pool import _dead_worker_message
 
     # listed first: a survivor that exited with an error as the pool's queues closed under it, then the one SIGTERMed
     procs = [_Exited(11, 1), _Exited(12, -signal.SIGTERM), _Exited(13, -signal.SIGKILL)]

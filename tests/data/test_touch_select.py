@@ -9,9 +9,9 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.data.datamodule import ClassificationDataModule
-from tvrecon.data.datasets import EvalDraws, TactileClassificationDataset
 from tvrecon.data.shapes import ObjectLibrary
-from tvrecon.data.touch_select import TouchSelector, set_loader_epoch
+from tvrecon.data.task_datasets import EvalDraws, TactileClassificationDataset
+from tvrecon.data.touches.select import TouchSelector, set_loader_epoch
 from tvrecon.models.lit_cls import ClassificationModule
 
 # tiny simulation (about 1 s for the 2 objects x 5 touches): 8x8 pad, 3 layers, 32^3 grid

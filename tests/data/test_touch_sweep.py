@@ -1,4 +1,4 @@
-"""The paper's touches (tvrecon.data.touch_sweep): centre aim, side-to-top sweep, depth, the presets' ratios, and a
+"""The paper's touches (tvrecon.data.touches.sweep): centre aim, side-to-top sweep, depth, the presets' ratios, and a
 touch that misses a thin part, a diverging touch."""
 
 import warnings
@@ -10,10 +10,10 @@ import torch
 import trimesh
 from omegaconf import OmegaConf
 
-from tvrecon.data.datasets import TactileClassificationDataset
-from tvrecon.data.touch_report import contact_report
-from tvrecon.data.touch_sweep import AUTHORS_RATIOS, PaperSweepTouchPolicy, eip_geometry_ratios, sweep_directions
-from tvrecon.data.touches import make_touch_policy, sample_touches
+from tvrecon.data.task_datasets import TactileClassificationDataset
+from tvrecon.data.touches.policies import make_touch_policy, sample_touches
+from tvrecon.data.touches.report import contact_report
+from tvrecon.data.touches.sweep import AUTHORS_RATIOS, PaperSweepTouchPolicy, eip_geometry_ratios, sweep_directions
 from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -189,7 +189,7 @@ def test_a_touch_that_diverges_at_every_step_is_pressed_with_the_grid_contact(mo
     the particle contact. When the grid contact diverges too, the error stands."""
     import logging
 
-    from tvrecon.data import generated_dataset
+    from tvrecon.data import dataset_base as generated_dataset
 
     ds = TactileClassificationDataset(
         num_objects=1,
@@ -254,7 +254,7 @@ def test_a_touch_the_simulator_rejects_is_redrawn_with_a_warning_naming_the_item
     )
     mesh = ds.mesh(0)
     touches = sample_touches(mesh, 10, seed=7, policy=ds.touch, sim=ds.simulator)
-    with caplog.at_level("WARNING", logger="tvrecon.data.generated_dataset"):
+    with caplog.at_level("WARNING", logger="tvrecon.data.dataset_base"):
         fixed = ds._placeable_touches(mesh, touches, seed=7, index=0)
     kept = (fixed.directions == touches.directions).all(dim=1)
     assert 0 < int((~kept).sum()) < 10

@@ -7,7 +7,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.touches import (
+from tvrecon.data.touches.policies import (
     ConeTouchPolicy,
     Touches,
     cone_directions,
@@ -297,7 +297,7 @@ def test_make_touch_policy_and_cache_spec(torus: trimesh.Trimesh) -> None:
     # the default's cache spec is its fields only: the touch_policy entry of samples cached before policies existed
     fields = {"cone_deg": 15.0, "strengths": default.strengths, "visible_only": False, "oversample": 8}
     assert default.cache_spec() == fields
-    target = "tvrecon.data.touches.ConeTouchPolicy"
+    target = "tvrecon.data.touches.policies.ConeTouchPolicy"
     assert make_touch_policy({"_target_": target, "cone_deg": 15}).cache_spec() == fields  # int cone: same policy
     other = make_touch_policy({"_target_": f"{__name__}._AlongNormal", "cone_deg": 15.0})
     assert isinstance(other, _AlongNormal)
@@ -307,6 +307,6 @@ def test_make_touch_policy_and_cache_spec(torus: trimesh.Trimesh) -> None:
     with pytest.raises(ValueError, match=r"unknown touch \(ConeTouchPolicy\) option\(s\) \['cone'\]"):
         make_touch_policy({"cone": 15.0})
     with pytest.raises(ValueError, match="names no importable class"):
-        make_touch_policy({"_target_": "tvrecon.data.touches.NoSuchPolicy"})
+        make_touch_policy({"_target_": "tvrecon.data.touches.policies.NoSuchPolicy"})
     with pytest.raises(ValueError, match="is not a TouchPolicy dataclass"):
-        make_touch_policy({"_target_": "tvrecon.data.touches.Touches"})
+        make_touch_policy({"_target_": "tvrecon.data.touches.policies.Touches"})

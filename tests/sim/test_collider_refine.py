@@ -9,7 +9,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.cache import cache_key
+from tvrecon.data.cache.store import cache_key
 from tvrecon.sim.bodies.colliders import MeshCollider
 from tvrecon.sim.bodies.grid_contact import collider_at_block
 from tvrecon.sim.press import EIPSimulator, PressConfig

@@ -16,7 +16,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.generate import touches_per_process
+from tvrecon.data.generation.pool import touches_per_process
 from tvrecon.sim.mpm import MLSMPM
 from tvrecon.sim.mpm.compiled import backend, policy
 from tvrecon.sim.press import EIPSimulator, PressConfig

@@ -17,7 +17,7 @@ import torch
 import trimesh
 from physics_checks import free_slab_impact, loglog_slope, slab_lattice, slab_press
 
-from tvrecon.data.cache import cache_key, canonical_json
+from tvrecon.data.cache.store import cache_key, canonical_json
 from tvrecon.sim.bodies.colliders import PlaneCollider, SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
 from tvrecon.sim.press import EIPSimulator, PressConfig

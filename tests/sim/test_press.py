@@ -408,7 +408,7 @@ def test_touch_position_moves_off_a_hole_and_refuses_an_edge_on_plane(sim: EIPSi
 # repository's simulator; the tactile images of the data pipeline come from exactly these code paths.
 CACHE_BUMP = (
     "the press's tactile image changed: changing this means bumping the data cache version "
-    "(CACHE_VERSION in tvrecon/data/cache.py), or cached datasets keep the old images under the same keys"
+    "(CACHE_VERSION in tvrecon/data/cache/store.py), or cached datasets keep the old images under the same keys"
 )
 
 # The default press (issue 15 item 1: particle contact, threshold in squared cells of a 128-cell grid, so 0.0125 in

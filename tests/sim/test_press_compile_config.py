@@ -14,7 +14,7 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.cache import cache_key
+from tvrecon.data.cache.store import cache_key
 from tvrecon.sim.mpm import MLSMPM, MPMConfig
 from tvrecon.sim.mpm.compiled import backend
 from tvrecon.sim.press import EIPSimulator, PressConfig

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from tvrecon.data.cache import cache_key, canonical_json
+from tvrecon.data.cache.store import cache_key, canonical_json
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press.stop_rules import threshold_cells
 from tvrecon.sim.sensor.pad import SensorConfig

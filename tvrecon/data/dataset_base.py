@@ -1,13 +1,13 @@
 """The machinery of the generated datasets: item -> object, seeds, the simulator, the per-item cache.
 
-:class:`GeneratedDataset` is the base of :class:`~tvrecon.data.datasets.ReconstructionDataset` and
-:class:`~tvrecon.data.datasets.TactileClassificationDataset`: item ``i`` is an object of the
+:class:`GeneratedDataset` is the base of :class:`~tvrecon.data.task_datasets.ReconstructionDataset` and
+:class:`~tvrecon.data.task_datasets.TactileClassificationDataset`: item ``i`` is an object of the
 :class:`~tvrecon.data.shapes.ObjectLibrary` (class ``classes[i % C]``, instance ``instance_offset + i // C``) and a
 seeded set of touches simulated with the EIP simulator (all touches of an item in one ``press_batch`` call).
 Everything is derived from ``(seed, split, index)`` through ``numpy.random.SeedSequence``, and generation runs on one
 torch thread, so the same arguments give the same dataset bit for bit, in any worker, on a cache hit or a miss.
 
-What is cached (one ``.npz`` per item, see :mod:`tvrecon.data.cache`) is the *raw* generation result, keyed by
+What is cached (one ``.npz`` per item, see :mod:`tvrecon.data.cache.store`) is the *raw* generation result, keyed by
 :meth:`GeneratedDataset.spec`; what a subclass returns is derived from it on load.
 """
 
@@ -27,9 +27,9 @@ import trimesh
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from tvrecon.data.cache import SampleCache
+from tvrecon.data.cache.store import SampleCache
 from tvrecon.data.shapes import ObjectLibrary
-from tvrecon.data.touches import (
+from tvrecon.data.touches.policies import (
     Touches,
     TouchPolicy,
     make_touch_policy,
@@ -76,10 +76,10 @@ class GeneratedDataset(Dataset):
         instance_offset: first instance number used for each class.
         touches_per_item: touches simulated and cached per item (M).
         sensor, press: simulator configs (dataclass or mapping).
-        touch: the touch policy: a :class:`~tvrecon.data.touches.TouchPolicy` or a mapping of its fields with an
-            optional ``_target_`` (default :class:`~tvrecon.data.touches.ConeTouchPolicy`).
+        touch: the touch policy: a :class:`~tvrecon.data.touches.policies.TouchPolicy` or a mapping of its fields
+            with an optional ``_target_`` (default :class:`~tvrecon.data.touches.policies.ConeTouchPolicy`).
         tactile_size: model resolution (h, w) the tactile images are resized to on load.
-        tactile_scale: divisor of the raw displacement (grid cells), see :mod:`tvrecon.data.datasets`.
+        tactile_scale: divisor of the raw displacement (grid cells), see :mod:`tvrecon.data.task_datasets`.
         cache_dir: cache directory; ``None`` disables caching.
         sim_device: device of the simulator inside the workers (default: the simulator's default).
         patch_min_push: the contact test of the touches' contact patches
@@ -399,7 +399,7 @@ class GeneratedDataset(Dataset):
 
     def is_cached(self, index: int) -> bool:
         """True when a (readable-looking) cache entry of item ``index`` exists."""
-        from tvrecon.data.cache import cache_key
+        from tvrecon.data.cache.store import cache_key
 
         return cache_key(self.spec(self._check_index(index))) in self.cache
 

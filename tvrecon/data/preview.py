@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from tvrecon.data.touches import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.touches.policies import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
 from tvrecon.data.views import Camera, project_points, render_view, sample_camera  # noqa: E402
 from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
 from tvrecon.utils.shapes import check_shape

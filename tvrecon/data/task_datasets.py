@@ -1,10 +1,10 @@
 """The two generated datasets: tactile-visual reconstruction and tactile classification.
 
-Both are :class:`~tvrecon.data.generated_dataset.GeneratedDataset` (object indexing, seeds, simulator, per-item cache;
+Both are :class:`~tvrecon.data.dataset_base.GeneratedDataset` (object indexing, seeds, simulator, per-item cache;
 read its module docstring first). A reconstruction item adds a seeded view rendered with a random camera and GT surface
 samples.
 
-What is cached (one ``.npz`` per item, see :mod:`tvrecon.data.cache`) is the *raw* generation result: tactile
+What is cached (one ``.npz`` per item, see :mod:`tvrecon.data.cache.store`) is the *raw* generation result: tactile
 images at the sensor's resolution, in grid cells. What the dataset returns is derived on load: the number of
 touches T, the tactile resizing to the model resolution (``resize_tactile``, kornia), the normalization and the
 padding. Changing those never invalidates the cache; changing anything that goes into generation (mesh parameters,
@@ -28,10 +28,10 @@ import trimesh
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from tvrecon.data.generated_dataset import GeneratedDataset
+from tvrecon.data.dataset_base import GeneratedDataset
 from tvrecon.data.pose_augment import turn_about_up
 from tvrecon.data.tactile_augment import orient_touches
-from tvrecon.data.touch_select import TouchSelector
+from tvrecon.data.touches.select import TouchSelector
 from tvrecon.data.views import render_view, sample_camera
 from tvrecon.sim.sensor.patch import ContactPatch, contact_patch
 from tvrecon.utils.config_utils import coerce_config
@@ -70,7 +70,7 @@ class ReconstructionDataset(GeneratedDataset):
     T drawn uniformly in ``[min_touches, max_touches]`` from ``(seed, split, i)``, or T = ``num_touches`` for every
     sample when that is set (evaluation with 2, 5, 10 touches: the first 2 touches are the same in all three, and
     the cache of the split is shared). Which touches every path uses is summarised in
-    :mod:`tvrecon.data.touch_select`.
+    :mod:`tvrecon.data.touches.select`.
 
     Sample (``docs/batch-schema.md``):
         image (3,H,W) float32 [0,1]; K (3,3) float32; RT (3,4) float32 world->camera;
@@ -225,8 +225,8 @@ class TactileClassificationDataset(GeneratedDataset):
     """Tactile classification samples: N touches (different press directions) of one object and its class.
 
     Item ``i`` caches ``touches_per_object`` (M) touches; which N of them a sample shows is decided by a
-    :class:`~tvrecon.data.touch_select.TouchSelector` (the one owner of that choice, see
-    :mod:`tvrecon.data.touch_select`) from the item's load seed of ``(seed, split, i)``:
+    :class:`~tvrecon.data.touches.select.TouchSelector` (the one owner of that choice, see
+    :mod:`tvrecon.data.touches.select`) from the item's load seed of ``(seed, split, i)``:
 
     - ``redraw_touches=True`` (the training split of :class:`~tvrecon.data.datamodule.ClassificationDataModule`):
       N touches drawn afresh at every epoch, in random order (paper section 4.2: "during each training iteration,
@@ -300,7 +300,7 @@ class TactileClassificationDataset(GeneratedDataset):
         return self.selector.redraw
 
     def set_epoch(self, epoch: int) -> None:
-        """Set the epoch of the training draw (called by :func:`tvrecon.data.touch_select.set_loader_epoch`)."""
+        """Set the epoch of the training draw (called by :func:`tvrecon.data.touches.select.set_loader_epoch`)."""
         if int(epoch) < 0:
             raise ValueError(f"epoch must be >= 0, got {epoch}")
         self.epoch = int(epoch)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tvrecon.data.cache import SampleCache, cache_key
+from tvrecon.data.cache.store import SampleCache, cache_key
 from tvrecon.utils.atomic import atomic_open
 
 __all__ = ["ExportStats", "export_entries"]

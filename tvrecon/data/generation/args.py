@@ -1,5 +1,5 @@
 """The arguments of ``python -m tvrecon.data.generate`` that are the command's own (shared by the single-process
-command and its ``--multirun`` launcher, :mod:`tvrecon.data.generate_launcher`)."""
+command and its ``--multirun`` launcher, :mod:`tvrecon.data.generation.launcher`)."""
 
 from __future__ import annotations
 

@@ -26,7 +26,7 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from tvrecon.data.generate_args import OPTION_KEYS, parse_shard  # the app's keys: the command's own (swept)
+from tvrecon.data.generation.args import OPTION_KEYS, parse_shard  # the app's keys: the command's own (swept)
 from tvrecon.data.presets import PROJECT_ROOT, preset_names
 from tvrecon.utils.cli_errors import argv_and_env
 

@@ -17,7 +17,7 @@ import dataclasses
 import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 import kornia
 import numpy as np
@@ -86,7 +86,13 @@ class TouchPolicy:
     A policy is a dataclass (its fields are its configuration) with :meth:`sample`. The data configs select one with
     ``touch._target_`` (``configs/data/touch/*.yaml``); :func:`make_touch_policy` builds it. Its fields go into the
     cache key of every sample (:meth:`cache_spec`).
+
+    Attributes:
+        key_target: the class path a sample's cache key names (:meth:`cache_spec`): the path the class had when its
+            samples were first cached, so a move of its module keeps them; None: its current path.
     """
+
+    key_target: ClassVar[str | None] = None
 
     def sample(
         self,
@@ -112,7 +118,8 @@ class TouchPolicy:
         }
         if type(self) is ConeTouchPolicy:
             return fields
-        return {"_target_": f"{type(self).__module__}.{type(self).__qualname__}", **fields}
+        target = self.key_target or f"{type(self).__module__}.{type(self).__qualname__}"
+        return {"_target_": target, **fields}
 
 
 @dataclass

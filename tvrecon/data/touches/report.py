@@ -1,7 +1,7 @@
 """Which touches felt nothing: the cached ``contact`` flags of a generated dataset, per class.
 
 A touch reads blank when the pad never met the object, e.g. a part thinner than the grid resolves (a fork's tines
-on a 64-cell grid under the paper's touches, :mod:`tvrecon.data.touch_sweep`). The data keeps such a reading (all
+on a 64-cell grid under the paper's touches, :mod:`tvrecon.data.touches.sweep`). The data keeps such a reading (all
 zeros, ``contact`` False) and this report says how many there are, so a user sees which classes a grid cannot hold.
 """
 
@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tvrecon.data.cache import cache_key
-from tvrecon.data.generated_dataset import GeneratedDataset
+from tvrecon.data.cache.store import cache_key
+from tvrecon.data.dataset_base import GeneratedDataset
 
 __all__ = ["ContactReport", "contact_report"]
 

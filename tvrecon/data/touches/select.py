@@ -1,9 +1,9 @@
 """One owner of which cached touches a sample uses (and, in training, in which pad orientation).
 
-Every generated item caches M touches (:class:`~tvrecon.data.datasets.GeneratedDataset`). Which of them a sample
+Every generated item caches M touches (:class:`~tvrecon.data.task_datasets.GeneratedDataset`). Which of them a sample
 shows is decided here and nowhere else:
 
-- **Classification** (:class:`~tvrecon.data.datasets.TactileClassificationDataset` through :class:`TouchSelector`):
+- **Classification** (:class:`~tvrecon.data.task_datasets.TactileClassificationDataset` through :class:`TouchSelector`):
   training draws N of the M touches afresh at every visit (paper section 4.2: "during each training iteration, we
   randomly choose N tactile images"), in random order, reproducibly from ``(item seed, epoch)`` where the item seed
   is the dataset's load seed of ``(seed, split, index)``; evaluation takes a fixed seeded subset, sorted, the same

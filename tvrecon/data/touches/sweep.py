@@ -15,13 +15,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import torch
 import trimesh
 
-from tvrecon.data.touches import Touches, TouchPolicy
+from tvrecon.data.touches.policies import Touches, TouchPolicy
 from tvrecon.utils.config_utils import OMIT_IF_DEFAULT
 from tvrecon.utils.shapes import check_shape
 
@@ -87,6 +87,9 @@ class PaperSweepTouchPolicy(TouchPolicy):
             reaches farther along the press, e.g. a cube pressed at 45 degrees: that touch is rejected and re-drawn
             off the sweep. Kept to read caches made before ``"outside"``).
     """
+
+    #: the module path of the class when its samples were first cached (tvrecon/data/touch_sweep.py): their keys hold
+    key_target: ClassVar[str | None] = "tvrecon.data.touch_sweep.PaperSweepTouchPolicy"
 
     elevation_deg: Sequence[float] = (0.0, 90.0)
     depth_fractions: Sequence[float] = field(default_factory=lambda: (AUTHORS_RATIOS["depth_fraction"],))

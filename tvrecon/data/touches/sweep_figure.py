@@ -1,7 +1,7 @@
 """Pictures of a preset's touches: one object's sweep of touches, and a contact sheet of one touch per class.
 
-    python -m tvrecon.data.sweep_figure sweep --out sweep.png [--preset cls_paper_cpu --shape gear --seed 0]
-    python -m tvrecon.data.sweep_figure sheet --out sheet.png [--preset cls_paper_cpu --elevation 45]
+    python -m tvrecon.data.touches.sweep_figure sweep --out sweep.png [--preset cls_paper_cpu --shape gear --seed 0]
+    python -m tvrecon.data.touches.sweep_figure sheet --out sheet.png [--preset cls_paper_cpu --elevation 45]
 
 The touches come from the preset's own touch policy, pad and grid (``configs/data/<preset>.yaml``), pressed with the
 EIP simulator on the library's training objects; each tile shows the normal displacement of the contact layer (cells
@@ -24,9 +24,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from hydra.utils import instantiate  # noqa: E402
 
-from tvrecon.data.generated_dataset import GeneratedDataset  # noqa: E402
+from tvrecon.data.dataset_base import GeneratedDataset  # noqa: E402
 from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.touches.policies import sample_touches, simulate_touches  # noqa: E402
 from tvrecon.data.views import render_view, sample_camera  # noqa: E402
 from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
 
@@ -97,7 +97,9 @@ def contact_sheet(ds: GeneratedDataset, elevation: float = 45.0, seed: int = 0, 
 
 
 def main(argv: Sequence[str] | None = None) -> Path:
-    p = argparse.ArgumentParser(prog="python -m tvrecon.data.sweep_figure", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m tvrecon.data.touches.sweep_figure", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("kind", choices=("sweep", "sheet"), help="one object's sweep, or one touch per class")
     p.add_argument("--out", required=True, type=Path, help="PNG file to write")
     p.add_argument("--preset", default="cls_paper_cpu", help="data preset (configs/data), default cls_paper_cpu")

@@ -95,7 +95,7 @@ class PressConfig:
     ``contact``, ``threshold_grid`` and ``terminal`` were added after data was cached; at their defaults they stay out
     of the data cache key (``config_utils.OMIT_IF_DEFAULT``) and other values (``"grid"``, None, ``"displacement"``)
     enter it. Flipping the ``contact`` and ``threshold_grid`` defaults changed every default touch, so the data cache
-    version was bumped with it (``tvrecon.data.cache.CACHE_VERSION``).
+    version was bumped with it (``tvrecon.data.cache.store.CACHE_VERSION``).
     """
 
     n_grid: int = 128

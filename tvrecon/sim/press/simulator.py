@@ -199,7 +199,7 @@ class EIPSimulator:
         starts clear of the object however much the surface rises under it. When every ray misses (e.g. the hole
         of a torus), the footprint moves so that its most central particle is over the hit nearest the centre line
         among rays cast over the whole bounding box (:func:`tvrecon.sim.press.placement.touch_position`). (The data
-        pipeline samples its own touches, see ``tvrecon.data.touches``.)
+        pipeline samples its own touches, see ``tvrecon.data.touches.policies``.)
 
         Args:
             mesh: object in world coordinates. direction: (3,) world press direction (into the object).
