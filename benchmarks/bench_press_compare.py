@@ -34,7 +34,7 @@ from tvrecon.sim.bodies.colliders import MeshCollider
 from tvrecon.sim.bodies.grid_contact import collide_grid  # noqa: E402
 from tvrecon.sim.mpm import MLSMPM  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.elastic_pad import SensorConfig  # noqa: E402
 
 FIELDS = ("image", "position", "direction", "steps", "depth", "chamfer", "force", "contact", "force_field")
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 
 def test_check_shape_accepts_documented_shapes() -> None:

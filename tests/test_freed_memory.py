@@ -1,6 +1,6 @@
-"""``tvrecon.utils.heap.keep_freed_memory``: with it, memory a step freed is reused by the next step instead of being
-page-faulted in again (counted with ``getrusage``'s minor faults, in a fresh process each, since the setting is for
-the whole process)."""
+"""``tvrecon.utils.freed_memory.keep_freed_memory``: with it, memory a step freed is reused by the next step instead of
+being page-faulted in again (counted with ``getrusage``'s minor faults, in a fresh process each, since the setting is
+for the whole process)."""
 
 import platform
 import subprocess
@@ -8,12 +8,12 @@ import sys
 
 import pytest
 
-from tvrecon.utils.heap import MMAP_THRESHOLD_MAX, keep_freed_memory
+from tvrecon.utils.freed_memory import MMAP_THRESHOLD_MAX, keep_freed_memory
 
 # three 13 MB blocks a "step", as a paper step's (9, P) float32 state buffers: malloc'ed, written, freed, ten times
 STEPS = """
 import ctypes, resource, sys
-from tvrecon.utils.heap import keep_freed_memory
+from tvrecon.utils.freed_memory import keep_freed_memory
 if sys.argv[1] == "keep":
     assert keep_freed_memory()
 libc = ctypes.CDLL(None)

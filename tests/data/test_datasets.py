@@ -13,7 +13,7 @@ from tvrecon.data.cache.store import cache_key
 from tvrecon.data.shapes import ObjectLibrary
 from tvrecon.data.task_datasets import ReconstructionDataset, TactileClassificationDataset
 from tvrecon.data.touches.policies import Touches
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.utils.config_utils import coerce_config
 
 # tiny simulation: 8x8 pad, 3 layers, 32^3 grid, short fast presses, one press strength

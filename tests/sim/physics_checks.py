@@ -119,7 +119,8 @@ def loglog_slope(x: np.ndarray, y: np.ndarray, lo: float, hi: float) -> float:
 
 def slab_lattice(width: float, thick: float, spacing: float = 0.5) -> Tensor:
     """(P, 3) float32 particle offsets in cells of a square slab ``width`` x ``width`` x ``thick``, centred in x, y,
-    the contact layer at z = 0 first (layers, then y, then x), like :func:`tvrecon.sim.sensor.pad.pad_lattice`."""
+    the contact layer at z = 0 first (layers, then y, then x), like
+    :func:`tvrecon.sim.sensor.elastic_pad.pad_lattice`."""
     n = int(round(width / spacing))
     L = int(round(thick / spacing)) + 1
     i = (torch.arange(n, dtype=torch.float32) - (n - 1) / 2) * spacing

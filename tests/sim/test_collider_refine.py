@@ -13,7 +13,7 @@ from tvrecon.data.cache.store import cache_key
 from tvrecon.sim.bodies.colliders import MeshCollider
 from tvrecon.sim.bodies.grid_contact import collider_at_block
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 PAD = SensorConfig(resolution=(8, 8), layers=3)
 

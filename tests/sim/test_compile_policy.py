@@ -21,7 +21,7 @@ from tvrecon.sim.mpm import MLSMPM
 from tvrecon.sim.mpm.compiled import backend, policy
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press import loop as press_loop
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from tvrecon.sim.mpm.contact_reach import speed_reach
 from tvrecon.sim.mpm.particle_contact import ITERATIONS
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press import loop as press_loop
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 
 def test_speed_reach_grows_with_the_speed_and_stops_at_a_cell():

@@ -98,7 +98,7 @@ def _two_touches():
     """A sphere, a small pad 2 cells away with the particle contact, and two touches of it: (mesh, sensor, press,
     positions, directions)."""
     from tvrecon.sim.press import PressConfig
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor = SensorConfig(resolution=(12, 12), layers=4)

@@ -13,8 +13,8 @@ from test_mpm_compile import needs_compiler
 
 from tvrecon.sim.bodies.mesh_stack import MeshStack, near_blocks
 from tvrecon.sim.mpm import particle_contact
+from tvrecon.sim.mpm.block_grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.compiled import backend
-from tvrecon.sim.mpm.grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.particle_contact import contact_setup, mesh_contact
 from tvrecon.sim.press import loop as press_loop
 
@@ -64,7 +64,7 @@ def test_compiled_mesh_press_batch_uses_the_mesh_kernels_and_matches_eager(monke
     prefilter and the lookup as their kernels at every step. ``refine`` 2: the object's table twice as fine as the
     grid (``PressConfig.collider_refine``), looked up at its own spacing by the kernels."""
     from tvrecon.sim.press import EIPSimulator, PressConfig
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor = SensorConfig(resolution=(12, 12), layers=4)

@@ -11,8 +11,8 @@ from test_mesh_stack import _colliders, _points
 from test_mpm_compile import needs_compiler
 
 from tvrecon.sim.bodies.mesh_stack import MeshStack
+from tvrecon.sim.mpm.block_grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.compiled.mesh_contact_loop import fused_mesh_contact, mesh_contact_loop_available, mesh_search
-from tvrecon.sim.mpm.grid import bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.particle_contact import ITERATIONS, PUSH_CAP_CELLS, PUSH_OUT, contact_passes, contact_setup
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -13,10 +13,10 @@ from test_mpm import make_pad
 
 from tvrecon.sim.bodies.colliders import SphereCollider
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
+from tvrecon.sim.mpm.block_grid import shift_nodes
 from tvrecon.sim.mpm.compiled import backend
 from tvrecon.sim.mpm.compiled import step as compiled_step
 from tvrecon.sim.mpm.compiled.kernels import node_sums, polar_fixed
-from tvrecon.sim.mpm.grid import shift_nodes
 
 needs_compiler = pytest.mark.skipif(
     shutil.which("g++") is None and shutil.which("cc") is None, reason="torch.compile on CPU needs a C++ compiler"
@@ -132,7 +132,7 @@ def test_compiled_press_images_match_eager():
     import trimesh
 
     from tvrecon.sim.press import EIPSimulator, PressConfig
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor, press = SensorConfig(resolution=(12, 12), layers=4), PressConfig(n_grid=48)
@@ -149,7 +149,7 @@ def test_compiled_press_images_match_eager():
 def test_compiled_particle_force_matches_eager():
     """``last_particle_force`` of a compiled solver (one compiled gather) equals the eager ``share_node_force`` of the
     same step to float32 round-off (another summation order)."""
-    from tvrecon.sim.mpm.grid import share_node_force
+    from tvrecon.sim.mpm.block_grid import share_node_force
 
     comp = MLSMPM(MPMConfig(n_grid=32), compile=True)
     comp.compiled_chunk_size = 256
@@ -166,8 +166,8 @@ def test_compiled_particle_force_matches_eager():
 def test_grid_collide_matches_eager_grid_update(friction, damping):
     """The compiled grid side (plain function + collider fields) equals the eager grid update and collide_grid:
     two scenes, one with a sphere and one without a collider, Coulomb friction and damping."""
+    from tvrecon.sim.mpm.block_grid import Stencil
     from tvrecon.sim.mpm.compiled.grid import ColliderFields, grid_collide
-    from tvrecon.sim.mpm.grid import Stencil
 
     D = [6, 5, 7]
     nb = D[0] * D[1] * D[2]
@@ -196,8 +196,8 @@ def test_grid_collide_matches_eager_grid_update(friction, damping):
 @pytest.mark.parametrize("B", [1, 3])
 def test_stencil_bounds_and_block_index_match_block_layout(B):
     """The compiled path's block bounds and node index (plain functions) give block_layout's lo, lin and D."""
+    from tvrecon.sim.mpm.block_grid import block_dims, block_layout
     from tvrecon.sim.mpm.compiled.kernels import block_index, stencil_weights
-    from tvrecon.sim.mpm.grid import block_dims, block_layout
 
     x = 0.3 + 0.4 * torch.rand(B * 50, 3, generator=torch.Generator().manual_seed(1))
     batch = torch.arange(B).repeat_interleave(50)

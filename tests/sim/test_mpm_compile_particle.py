@@ -68,7 +68,7 @@ def test_compiled_particle_contact_press_images_match_eager(monkeypatch):
     import trimesh
 
     from tvrecon.sim.press import EIPSimulator, PressConfig, loop
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     monkeypatch.setattr(loop, "FREE_FLIGHT", False)  # every step a full one (free flight: test_free_flight.py)
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)

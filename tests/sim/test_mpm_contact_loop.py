@@ -78,7 +78,7 @@ def test_compiled_mesh_press_runs_the_fused_loops(one_thread, monkeypatch, loop)
     or, with that one off, the passes alone after the kernels' search), and the readings are within the tolerances
     of ``compile=True`` (1e-4 cells)."""
     from tvrecon.sim.press import EIPSimulator, PressConfig
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     sensor = SensorConfig(resolution=(12, 12), layers=4)

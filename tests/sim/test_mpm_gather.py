@@ -8,9 +8,9 @@ import torch
 from test_mpm_compile import _press, needs_compiler
 
 from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
+from tvrecon.sim.mpm.block_grid import Stencil, Transfer, block_dims, bspline_weights
 from tvrecon.sim.mpm.compiled import gather, scatter, step
 from tvrecon.sim.mpm.compiled.kernels import block_index, g2p_update, stencil_base
-from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, bspline_weights
 
 
 def _g2p_inputs(B: int, hand: str, seed: int = 0):

@@ -6,9 +6,9 @@ import pytest
 import torch
 from test_mpm_compile import needs_compiler
 
+from tvrecon.sim.mpm.block_grid import block_layout
 from tvrecon.sim.mpm.compiled import scatter as mpm_scatter
 from tvrecon.sim.mpm.compiled.kernels import node_sums, p2g_contrib, polar_fixed, stencil_base
-from tvrecon.sim.mpm.grid import block_layout
 
 
 @needs_compiler

@@ -19,7 +19,7 @@ from tvrecon.sim.mpm import MLSMPM, MPMConfig
 from tvrecon.sim.mpm.compiled import backend
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press import loop as press_loop
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 SENSOR = SensorConfig(resolution=(8, 8), layers=3)
 PRESS = PressConfig(n_grid=32)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from tvrecon.sim.sensor import SensorConfig, alpha_profile, pad_lattice, sensor_frame
-from tvrecon.sim.sensor.pad import contact_layer, mass_scale
+from tvrecon.sim.sensor.elastic_pad import contact_layer, mass_scale
 
 
 def test_pad_lattice_layout() -> None:

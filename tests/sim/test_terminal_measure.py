@@ -14,7 +14,7 @@ import trimesh
 from tvrecon.data.cache.store import cache_key, canonical_json
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press.stop_rules import threshold_cells
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 
 def _press(mesh: trimesh.Trimesh, top: float, terminal: str):

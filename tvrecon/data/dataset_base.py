@@ -41,7 +41,7 @@ from tvrecon.sim.mpm.compiled.policy import resolve_compile, touch_work, use_com
 from tvrecon.sim.mpm.state import MPMConfig, cfl_dt
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.simulator import EIPSimulator
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.sim.sensor.patch import DEFAULT_MIN_PUSH
 from tvrecon.utils.config_utils import coerce_config
 

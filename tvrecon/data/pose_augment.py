@@ -14,7 +14,7 @@ import math
 import torch
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["turn_about_up"]
 

@@ -27,7 +27,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from tvrecon.data.touches.policies import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
 from tvrecon.data.views import Camera, project_points, render_view, sample_camera  # noqa: E402
 from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["make_preview", "draw_preview", "save_figure_atomic", "main"]
 
@@ -189,7 +189,7 @@ def make_preview(
     from tvrecon.data.shapes import available_classes, make_shape
     from tvrecon.sim.press.config import PressConfig
     from tvrecon.sim.press.simulator import EIPSimulator
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     if shape not in available_classes():
         raise ValueError(f"unknown shape {shape!r}; available: {', '.join(available_classes())}")

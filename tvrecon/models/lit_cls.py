@@ -24,7 +24,7 @@ from tvrecon.models.class_names import datamodule_class_names
 from tvrecon.models.finite_loss import check_finite_loss
 from tvrecon.models.heading_ensemble import check_headings, heading_ensemble
 from tvrecon.models.optim import configure_optimizers
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["ClassificationModule", "gather_touches", "other_object_index", "select_touches", "touch_index"]
 

@@ -28,7 +28,7 @@ import trimesh
 
 from tvrecon.robot.pad_config import PadConfig
 from tvrecon.robot.pad_reading import ContactPoint, FingerReading
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["LazySimulator", "PadSensor", "sense_pads", "to_pad_frame"]
 
@@ -47,7 +47,7 @@ class LazySimulator:
         if self._sim is None:
             from tvrecon.sim.press.config import PressConfig
             from tvrecon.sim.press.simulator import EIPSimulator
-            from tvrecon.sim.sensor.pad import SensorConfig
+            from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
             pc = self.pad
             sensor = SensorConfig(
@@ -81,8 +81,8 @@ class LazySimulator:
 def to_pad_frame(image: torch.Tensor, direction: np.ndarray, up: np.ndarray) -> torch.Tensor:
     """Resample a simulator tactile image from the simulator's sensor frame into a finger pad frame.
 
-    The simulator frame (``tvrecon.sim.sensor.pad.sensor_frame``) has e_z = -direction and e_x from the world x axis;
-    the pad frame shares e_z and has e_y along ``up`` (projected onto the contact plane), e_x = e_y x e_z. Pixels
+    The simulator frame (``tvrecon.sim.sensor.elastic_pad.sensor_frame``) has e_z = -direction and e_x from the world x
+    axis; the pad frame shares e_z and has e_y along ``up`` (projected onto the contact plane), e_x = e_y x e_z. Pixels
     are bilinearly resampled (zeros outside the pad) and the shear channels rotated with the frame.
 
     Args:
@@ -93,7 +93,7 @@ def to_pad_frame(image: torch.Tensor, direction: np.ndarray, up: np.ndarray) -> 
     Returns:
         (3,H,W) float32 image in the pad frame.
     """
-    from tvrecon.sim.sensor.pad import sensor_frame
+    from tvrecon.sim.sensor.elastic_pad import sensor_frame
 
     check_shape(image, "(3, H, W)", "image")
     R = sensor_frame(torch.as_tensor(np.asarray(direction, dtype=np.float32)))  # (3,3) columns ex, ey, ez

@@ -26,7 +26,7 @@ from tvrecon.data.cache.housekeeping import remove_stale_tmp
 from tvrecon.data.cache.store import cache_key
 from tvrecon.data.dataset_base import GeneratedDataset
 from tvrecon.utils.cli_errors import RESUME_HINT
-from tvrecon.utils.heap import keep_freed_memory
+from tvrecon.utils.freed_memory import keep_freed_memory
 
 __all__ = [
     "GenerateStats",
@@ -99,7 +99,7 @@ def _init_worker(datasets: tuple[GeneratedDataset, ...]) -> None:
     if hasattr(signal, "pthread_sigmask"):  # started with SIGINT blocked (see _pool_generate): now ignored, unblock
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     torch.set_num_threads(1)
-    keep_freed_memory()  # a press step's temporaries stay in the process for the next step (tvrecon.utils.heap)
+    keep_freed_memory()  # a press step's temporaries stay in the process for the next step (tvrecon.utils.freed_memory)
     _DATASETS = datasets
 
 

@@ -30,7 +30,7 @@ from tvrecon.data.views import Camera, ray_intersector
 from tvrecon.sim.press.placement import pad_footprint, pad_reachable
 from tvrecon.utils.config_utils import coerce_config, omitted_from_key
 from tvrecon.utils.geometry import check_mesh, perpendicular_basis, world_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 if TYPE_CHECKING:  # the simulator is only needed by the caller of simulate_touches
     from tvrecon.sim.press.reading import TactileReading

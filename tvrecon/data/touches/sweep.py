@@ -23,12 +23,12 @@ import trimesh
 
 from tvrecon.data.touches.policies import Touches, TouchPolicy
 from tvrecon.utils.config_utils import OMIT_IF_DEFAULT
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 if TYPE_CHECKING:
     from tvrecon.sim.press.config import PressConfig
     from tvrecon.sim.press.simulator import EIPSimulator
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 __all__ = ["PaperSweepTouchPolicy", "eip_geometry_ratios", "outside_start", "sweep_directions"]
 

@@ -23,7 +23,7 @@ except AttributeError as _err:  # PyOpenGL found no library for the MUJOCO_GL ba
 
 import numpy as np  # noqa: E402
 
-from tvrecon.utils.shapes import check_shape  # noqa: E402
+from tvrecon.utils.shape_check import check_shape  # noqa: E402
 
 __all__ = ["RendererUnavailable", "MujocoCamera", "open_renderer", "depth_to_world"]
 

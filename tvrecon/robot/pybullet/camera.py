@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["CameraConfig", "RGBDCamera", "depth_to_points"]
 

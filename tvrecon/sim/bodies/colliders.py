@@ -16,7 +16,7 @@ import trimesh
 from torch import Tensor
 
 from tvrecon.sim.bodies.mesh_region import below_first_hit, clip_to_box
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "Collider",

@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.mpm.small_matmul import matmul3
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "lame_parameters",

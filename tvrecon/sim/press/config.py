@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from tvrecon.sim.mpm.compiled.policy import AUTO, check_compile_setting
 from tvrecon.sim.mpm.state import CONTACT_MODES
-from tvrecon.sim.sensor.pad import _scalar
+from tvrecon.sim.sensor.elastic_pad import _scalar
 from tvrecon.utils.config_utils import NOT_IN_KEY, OMIT_IF_DEFAULT, check_number, check_whole
 
 __all__ = ["DEFAULT_THRESHOLD", "MAX_COLLIDER_REFINE", "TERMINAL_MEASURES", "PressConfig"]

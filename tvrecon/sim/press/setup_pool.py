@@ -24,7 +24,7 @@ from torch import Tensor
 
 from tvrecon.sim.press import placement
 from tvrecon.sim.press.config import PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 __all__ = ["SetupPool"]
 

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.utils import config_utils
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 ALPHA_PROFILES = ("clamped", "linear")
 
