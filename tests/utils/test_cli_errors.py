@@ -16,7 +16,7 @@ import pytest
 
 from tvrecon.utils.cli_errors import RESUME_HINT, call_cli, cli_errors, exit_code, one_line
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _one_error_line(err: str, prog: str) -> str:

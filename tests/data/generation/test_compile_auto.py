@@ -1,5 +1,5 @@
 """``compile="auto"`` in the data pipeline (issue 27): ``pregenerate`` and the datamodule settle it per process from
-the touches that process will simulate (the policy itself: ``tests/sim/test_compile_policy.py``). Nothing is
+the touches that process will simulate (the policy itself: ``tests/sim/mpm/test_compile_policy.py``). Nothing is
 simulated or compiled: the presses are stubbed."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from tvrecon.data.generation.pool import pregenerate
 from tvrecon.data.presets import compose_preset
 from tvrecon.sim.mpm.compiled import policy
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture

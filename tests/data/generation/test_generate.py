@@ -188,7 +188,7 @@ def test_compile_key_is_the_press_config_field_the_workers_receive(monkeypatch, 
     base = [*ARGS, f"cache_dir={tmp_path}", "splits=train", "workers=1"]
     generate.main([*base, "compile=true"])
     generate.main([*base, "compile=False"])
-    generate.main(base)  # the presets' auto (pregenerate settles it per process: tests/sim/test_compile_policy.py)
+    generate.main(base)  # the presets' auto (pregenerate settles it per process: tests/sim/mpm/test_compile_policy.py)
     generate.main([*base, "press.compile=true"])  # the long spelling, as train.py's data.press.compile=true
     generate.main([*base, "compile=AUTO"])
     assert [s[:2] for s in seen] == [(True, True), (False, False), ("auto", "auto"), (True, True), ("auto", "auto")]

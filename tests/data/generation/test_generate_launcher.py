@@ -22,7 +22,7 @@ from tiny_press import TINY_PRESS
 from tvrecon.data.generate import main
 from tvrecon.data.generation.launcher import APP_CONFIG_DIR, hydra_arguments
 
-ARGS = [  # 3 train items of 2 touches on a coarse grid (tests/data/test_generate.py's preset)
+ARGS = [  # 3 train items of 2 touches on a coarse grid (tests/data/generation/test_generate.py's preset)
     "preset=cls_tiny",
     "train.num_objects=3",
     "touches_per_object=2",

@@ -17,7 +17,7 @@ import pytest
 
 from tvrecon.utils.cli_errors import RESUME_HINT
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 ARGS = [
     "preset=cls_tiny",
     "train.num_objects=4",

@@ -18,7 +18,7 @@ from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "data"
+CONFIGS = Path(__file__).resolve().parents[3] / "configs" / "data"
 
 
 def _block(group: str, name: str) -> dict:

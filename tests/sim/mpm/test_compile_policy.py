@@ -1,6 +1,6 @@
 """``compile="auto"`` (issue 27: the fast path by default): who compiles, decided per process from its share of the
 touches, the device, a C++ compiler and a warm compile cache; the compile cache under the data cache (the datasets'
-side: ``tests/data/test_compile_auto.py``).
+side: ``tests/data/generation/test_compile_auto.py``).
 
 Nothing is compiled here: the solver a press builds is caught after its construction (as in
 ``test_press_compile_config.py``).

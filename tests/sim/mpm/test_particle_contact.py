@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from physics_checks import free_slab_impact, loglog_slope, slab_lattice, slab_press
 
 from tvrecon.data.cache.store import cache_key, canonical_json
 from tvrecon.sim.bodies.colliders import PlaneCollider, SphereCollider
@@ -23,6 +22,7 @@ from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press.stop_rules import threshold_cells
 from tvrecon.sim.sensor import SensorConfig
+from tvrecon.sim.validation.physics_checks import free_slab_impact, loglog_slope, slab_lattice, slab_press
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
 # a pad 3 cells thick (the 1.5-cell stencil needs a few cells of layer to bend), sphere R = 6 cells, pressed 1.5 cells

@@ -56,7 +56,7 @@ def solver_compiled(monkeypatch: pytest.MonkeyPatch):
 
 
 def test_compile_is_a_press_field_outside_the_cache_key() -> None:
-    assert PressConfig().compile == "auto"  # the job decides (tests/sim/test_compile_policy.py)
+    assert PressConfig().compile == "auto"  # the job decides (tests/sim/mpm/test_compile_policy.py)
     on = dataclasses.replace(PRESS, compile=True)
     assert cache_key({"press": on, "sensor": SENSOR}) == cache_key({"press": PRESS, "sensor": SENSOR})
     assert cache_key({"press": PressConfig()}) == cache_key({"press": PressConfig(compile=True)})
@@ -97,7 +97,7 @@ def test_the_old_environment_variable_is_ignored_with_a_warning(monkeypatch: pyt
 def test_a_compile_config_changes_nothing_but_the_kernels(monkeypatch: pytest.MonkeyPatch) -> None:
     """With the kernels marked failed (as after a failed compile) a ``compile=True`` press runs the eager step and
     reads bit for bit what the default press reads: the field selects the kernels and nothing else (the readings of
-    the real compiled kernels: tests/sim/test_mpm_compile.py, slow)."""
+    the real compiled kernels: tests/sim/mpm/test_mpm_compile.py, slow)."""
     monkeypatch.delenv("TVRECON_COMPILE", raising=False)
     monkeypatch.setattr(backend, "_KERNELS", SimpleNamespace(failed=True))
     pos, d = [0.0, 0.0, 0.3], [0.0, 0.0, -1.0]

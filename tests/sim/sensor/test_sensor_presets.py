@@ -25,7 +25,7 @@ from tvrecon.sim.sensor.presets import (
 )
 
 NAMES = sorted(SENSOR_PRESETS)
-SENSOR_BLOCKS = Path(__file__).resolve().parents[2] / "configs" / "data" / "sensor"
+SENSOR_BLOCKS = Path(__file__).resolve().parents[3] / "configs" / "data" / "sensor"
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # see tests/conftest.py

@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from physics_checks import (
+
+from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.sensor import SensorConfig
+from tvrecon.sim.validation.physics_checks import (
     free_oscillation,
     free_slab_impact,
     hertz_force,
@@ -20,9 +23,6 @@ from physics_checks import (
     slab_press,
     winkler_force,
 )
-
-from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor import SensorConfig
 
 TINY = {"n_grid": 32, "width": 8.0, "thick": 2.0, "R": 4.0, "max_depth": 1.5}
 
@@ -126,7 +126,8 @@ def test_contact_theory_curves_are_the_reference_formulas() -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from physics_checks import draw_contact_theory, hertz_force, winkler_radius
+
+    from tvrecon.sim.validation.physics_checks import draw_contact_theory, hertz_force, winkler_radius
 
     fig, ax = plt.subplots(1, 2)
     d = np.linspace(0.1, 2.0, 5)
@@ -143,7 +144,8 @@ def test_label_contact_axes_names_both_panels_and_their_limits():
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from physics_checks import draw_contact_theory, label_contact_axes
+
+    from tvrecon.sim.validation.physics_checks import draw_contact_theory, label_contact_axes
 
     fig, ax = plt.subplots(1, 2)
     draw_contact_theory(ax, 3.0, 0.25, 8.0, 4.0, 0.01, np.linspace(0.1, 2.0, 5))

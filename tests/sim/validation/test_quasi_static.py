@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from physics_checks import slab_press
-from quasi_static import hand_schedule, hold_means, relaxation_steps
+
+from tvrecon.sim.validation.physics_checks import slab_press
+from tvrecon.sim.validation.quasi_static import hand_schedule, hold_means, relaxation_steps
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
 # the tiny scene of benchmarks/bench_hertz_static.py: sphere R = 6 cells, pad 3 cells thick, n_grid 32

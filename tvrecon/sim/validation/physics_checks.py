@@ -1,5 +1,6 @@
 """Physics checks of the solver (issue 15 item 2): the scenes and the theory that ``benchmarks/bench_physics.py``
-and ``tests/sim/test_physics.py`` share. Nothing here changes the simulator; it drives :class:`MLSMPM` directly.
+and ``tests/sim/validation/test_physics.py`` share. Nothing here changes the simulator; it drives :class:`MLSMPM`
+directly.
 
 Scenes (lengths in grid cells unless said otherwise, domain units = cells * dx):
 
@@ -30,13 +31,13 @@ from typing import Any
 
 import numpy as np
 import torch
-from quasi_static import hand_schedule, relaxation_damping, relaxation_steps
 from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import SphereCollider
 from tvrecon.sim.mpm.materials import fixed_corotated_energy, lame_parameters, p_wave_speed
 from tvrecon.sim.mpm.solver import MLSMPM
 from tvrecon.sim.mpm.state import MPMConfig, ParticleState, cfl_dt
+from tvrecon.sim.validation.quasi_static import hand_schedule, relaxation_damping, relaxation_steps
 
 __all__ = [
     "SlabPress",

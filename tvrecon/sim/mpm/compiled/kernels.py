@@ -27,7 +27,7 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
 
 Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
 The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
-per-batch Newton stop); ``tests/sim/test_mpm_compile.py`` checks it.
+per-batch Newton stop); ``tests/sim/mpm/test_mpm_compile.py`` checks it.
 """
 
 from __future__ import annotations
