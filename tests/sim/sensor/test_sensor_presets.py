@@ -11,6 +11,7 @@ import pytest
 import torch
 import trimesh
 import yaml
+from omegaconf import OmegaConf
 
 from tvrecon.sim.__main__ import main
 from tvrecon.sim.press import EIPSimulator, PressConfig
@@ -52,12 +53,20 @@ def test_preset_builds_a_pad_of_the_sensor_size_that_fits(name: str, n_grid: int
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_hydra_block_is_the_preset_at_n_grid_128(name: str) -> None:
+def test_hydra_block_loads_the_preset_at_n_grid_128(name: str) -> None:
+    """A data preset with ``data/sensor=<name>`` builds the preset's pad: the block reads every number of it from
+    :mod:`tvrecon.sim.sensor.presets` (``${sensor_preset:...}``) and holds none of its own."""
+    from tvrecon.data.presets import compose_preset
+    from tvrecon.utils.config_utils import coerce_config
+
     block = yaml.safe_load((SENSOR_BLOCKS / f"{name}.yaml").read_text())
-    s = sensor_config(name, 128)
     assert block["defaults"] == ["gel", "_self_"]
-    assert tuple(block["resolution"]) == s.resolution and block["layers"] == s.layers
-    assert block["E"] == s.E and block["nu"] == s.nu
+    assert {k: v for k, v in block.items() if k != "defaults"} == {
+        field: f"${{sensor_preset:{name},{field}}}" for field in ("resolution", "layers", "E", "nu")
+    }
+    cfg = compose_preset("tiny", [f"sensor={name}"])
+    sensor = coerce_config(SensorConfig, OmegaConf.to_container(cfg.sensor, resolve=True), "sensor")
+    assert sensor == sensor_config(name, 128)
 
 
 def test_speed_keeps_the_default_ratio_to_the_shear_wave() -> None:
