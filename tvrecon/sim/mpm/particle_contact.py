@@ -230,6 +230,15 @@ class MeshStackCache:
         """The host's value of :meth:`drift_of` for positions ``x`` (the next step's)."""
         self._moved = (x, float(drift))
 
+    def snapshot(self) -> tuple[object, object]:
+        """The kept list and its drift as they are now (opaque), for :meth:`restore`: a window of unread steps that
+        runs again from its start (``MLSMPM.mark`` / ``MLSMPM.rewind``) starts from the list it had then."""
+        return self._list, self._moved
+
+    def restore(self, snapshot: tuple[object, object]) -> None:
+        """Back to the kept list and drift of a :meth:`snapshot`."""
+        self._list, self._moved = snapshot  # type: ignore[assignment]
+
 
 def _near_stacked(
     x: Tensor,

@@ -410,14 +410,14 @@ class MLSMPM:
     def mark(self) -> WindowMark:
         """The solver's own state now (the next step's planned layout, the contact's kept list)."""
         plan, ms = self._next_layout, self._mesh_stack
-        return WindowMark(plan, None if plan is None else plan.D, plan is not None and plan.padded, ms._list, ms._moved)
+        return WindowMark(plan, None if plan is None else plan.D, plan is not None and plan.padded, *ms.snapshot())
 
     def rewind(self, mark: WindowMark) -> None:
         """Back to :meth:`mark`'s state: the next step is the one that followed it."""
         if mark.layout is not None:
             mark.layout.D, mark.layout.padded = mark.layout_dims, mark.layout_padded
         self._next_layout = mark.layout
-        self._mesh_stack._list, self._mesh_stack._moved = mark.contact_list, mark.contact_moved  # type: ignore[assignment]
+        self._mesh_stack.restore((mark.contact_list, mark.contact_moved))
 
     def force_source(self) -> tuple[Transfer | None, Tensor | None]:
         """What :meth:`last_particle_force` reads of the last step (references), to share that step's force out

@@ -259,7 +259,8 @@ def slab_press(
             touching = (fz > 0).sum(1).to(torch.float64) * spacing**2  # (B,) contact area, cells^2
             area_radii[:, s] = (touching / math.pi).sqrt().numpy()
             continue
-        nf = solver._last_transfer.node_force.view(B, D[0], D[1], D[2], 3)[..., 2]  # (B, X, Y, Z)
+        transfer, _ = solver.force_source()  # the last step's transfer
+        nf = transfer.node_force.view(B, D[0], D[1], D[2], 3)[..., 2]  # (B, X, Y, Z)
         ix = torch.arange(D[0])[None, :, None] + lo[:, 0, None, None]  # (B, X, 1) global node index
         iy = torch.arange(D[1])[None, None, :] + lo[:, 1, None, None]
         r2 = (ix - centre_cells[0]) ** 2 + (iy - centre_cells[1]) ** 2  # (B, X, Y) cells^2
