@@ -5,10 +5,10 @@ a function, or under ``if TYPE_CHECKING:`` (a type-only import of a sibling stil
 
 Layers, bottom to top: ``utils < sim < data < losses, models < train, robot < report < entry points``. Entry points are
 the command lines (``__main__`` modules), which may use any layer. Inside :mod:`tvrecon.sim` the rooms have their own
-order: ``bodies < mpm < sensor < press``; the package's ``__init__``, its plots, CLI and physics checks sit on top of them.
-Inside :mod:`tvrecon.robot` the engine-free core (the modules outside a room) sits below one room per physics engine,
-and the engines' rooms never import each other. No module imports a command line's module (the datamodule calls the
-worker pool, not ``python -m tvrecon.data.generate``).
+order: ``bodies < mpm < sensor < press``; the package's ``__init__``, its plots, CLI and physics checks sit on top of
+them. Inside :mod:`tvrecon.robot` the engine-free core (the modules outside a room) sits below one room per physics
+engine, and the engines' rooms never import each other. No module imports a command line's module (the datamodule
+calls the worker pool, not ``python -m tvrecon.data.generate``).
 """
 
 from __future__ import annotations
