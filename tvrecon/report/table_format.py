@@ -63,7 +63,7 @@ PRETTY_NAMES: dict[str, str] = {
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
     "classify_paper_cpu": "Tactile classifier",
-    "classify_paper_cpu_upsampled": "Tactile classifier",
+    "classify_paper_cpu_upsampled": "Tactile classifier, images upsampled to 112 px",
     "classify_touch_set": "Touch-set classifier (beyond the paper)",
     "classify_contact_cloud": "Contact-cloud classifier (beyond the paper)",
     "classify_contact_point": "Contact points only (control)",
