@@ -60,10 +60,14 @@ def _paper_size_lines(results_root: Path) -> list[str]:
     lines = [
         f"- The paper's fusion reads its touches with Table 1's amount of data: on `{preset}` (650 training objects of "
         f"35 classes) another object's 10 touches score {worse:.1f}% worse than its own (mean of {len(full)} seeds), "
-        f"and 10 touches give {ratio:.2f}x Pixel2Mesh's error ({len(visual)} seeds; the paper: "
+        f"and 10 touches give {ratio:.2f}x Pixel2Mesh's error ({len(visual)} seed{'s' * (len(visual) > 1)}; the paper: "
         f"{paper_touch_ratio():.2f}x). Results: results/table3; page: {PAGE}.",
         f"- The full-size run: `python -m tvrecon.data.generate preset={preset} workers=2`, then `{command}`"
-        + (f" (about {sum(walls) / len(walls) / 3600:.1f} h a seed on {m.get('machine')})" if walls else "")
+        + (
+            f" (about {sum(walls) / len(walls) / 3600:.1f} h a seed there; machine: {m.get('machine')})"
+            if walls
+            else ""
+        )
         + "; the paper's recipe on a GPU: `python train.py experiment=full data=paper trainer=gpu`.",
     ]
     return lines
@@ -85,7 +89,7 @@ def explain_touches(result: Mapping[str, Any], results_root: Path | None = DEFAU
     if ks:
         k = max(ks)
         touched = [_chamfer(result, f"tv@{j}") or 0.0 for j in ks]
-        verdict = "the touches help" if touched[-1] < base else "the touches do not help this model at this size"
+        verdict = "the touches help" if touched[-1] < base else "with this run's training the touches do not help"
         lines.append(
             f"- No touch {base:.2f}; {' / '.join(map(str, ks))} touches {' / '.join(f'{v:.2f}' for v in touched)}: "
             f"{verdict} ({k} touches {_pct(touched[-1], base)} against none)."
@@ -93,9 +97,9 @@ def explain_touches(result: Mapping[str, Any], results_root: Path | None = DEFAU
         other = _chamfer(result, f"tv@{k}:other")
         if other is not None:
             reads = (
-                "it reads its own touches (another object's score over 5% worse)"
+                "the answer depends on which object was touched (over 5% apart)"
                 if other > touched[-1] * 1.05
-                else "it does not tell its own touches from another object's"
+                else "it does not tell its own touches from another object's (within 5%)"
             )
             lines.append(
                 f"- Another object's {k} touches: {other:.2f} against its own {touched[-1]:.2f} "

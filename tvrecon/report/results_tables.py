@@ -105,6 +105,12 @@ def _recon(root: Path) -> tuple[list[Run], list[dict[str, Any]]]:
     return runs, [r.result() for r in runs]
 
 
+def _seeds_phrase(manifests: Sequence[Mapping[str, Any]]) -> str:
+    """``"seed 0"`` or ``"seeds 0, 1, 2"``."""
+    seeds = ", ".join(str(m.get("seed")) for m in manifests)
+    return f"seed{'s' * (len(manifests) > 1)} {seeds}"
+
+
 def _group_commands(runs: Sequence[Run], results: Sequence[Mapping[str, Any]]) -> list[str]:
     """One line per Table 3/4 row: its label, data preset, seeds and command (``seed=<seed>`` for several seeds)."""
     run_of = {id(res): run for res, run in zip(results, runs)}
@@ -117,9 +123,8 @@ def _group_commands(runs: Sequence[Run], results: Sequence[Mapping[str, Any]]) -
             cmd = re.sub(r"\bseed=\d+", "seed=<seed>", cmd) if len(group) > 1 else cmd
             if cmd not in commands:
                 commands.append(cmd)
-        seeds = ", ".join(str(m.get("seed")) for m in manifests)
         preset = manifests[0].get("data_preset")
-        lines.append(f"- {label} (`{preset}`, seeds {seeds}): " + "; ".join(f"`{c}`" for c in commands))
+        lines.append(f"- {label} (`{preset}`, {_seeds_phrase(manifests)}): " + "; ".join(f"`{c}`" for c in commands))
     return lines
 
 
@@ -153,7 +158,7 @@ def _cls(root: Path) -> tuple[list[Run], list[Run]]:
 
 def render_table2(root: Path) -> str:
     runs, summaries = _cls(root)
-    presets = sorted({str(r.manifest.get("data_preset")) for r in runs + summaries})
+    presets = sorted({str(r.manifest.get("data_preset")) for r in runs + summaries}, reverse=True)  # CPU preset first
     parts = []
     for preset in presets:
         mine = [r for r in runs if r.manifest.get("data_preset") == preset]
@@ -167,10 +172,11 @@ def render_table2(root: Path) -> str:
             by_model.setdefault(f"{r.metrics['name']}, {r.metrics.get('num_touches')} touches", []).append(r)
         for key, model_runs in by_model.items():
             name, touches = key.split(", ")
-            seeds = ", ".join(str(r.manifest.get("seed")) for r in model_runs)
-            cmd = re.sub(r"\bseed=\d+", "seed=<seed>", str(model_runs[0].manifest.get("command")))
+            seeds = _seeds_phrase([r.manifest for r in model_runs])
+            cmd = str(model_runs[0].manifest.get("command"))
+            cmd = re.sub(r"\bseed=\d+", "seed=<seed>", cmd) if len(model_runs) > 1 else cmd
             n = touches.split()[0]
-            lines.append(f"- {PRETTY_NAMES.get(name, name)}, {n} touch{'es' * (n != '1')} (seeds {seeds}): `{cmd}`")
+            lines.append(f"- {PRETTY_NAMES.get(name, name)}, {n} touch{'es' * (n != '1')} ({seeds}): `{cmd}`")
         for s in summaries:
             if s.manifest.get("data_preset") == preset:
                 lines.append(
@@ -284,6 +290,10 @@ def render_benchmarks(root: Path) -> str:
     return table.to_markdown()
 
 
+def _n_seeds(n: int) -> str:
+    return f"{n} seed{'s' * (n != 1)}"
+
+
 def _mean_cell(values: Sequence[float], digits: int = 2) -> str:
     mean, std = mean_std(values)
     return f"{mean:.{digits}f} +- {std:.{digits}f}" if len(values) > 1 else f"{mean:.{digits}f}"
@@ -291,13 +301,21 @@ def _mean_cell(values: Sequence[float], digits: int = 2) -> str:
 
 def render_headline(root: Path) -> str:
     """One line per paper table: the paper's figure, ours (with its data preset and seeds), the page."""
+    from tvrecon.data.presets import TABLE1, compose_preset, split_sizes
+
     lines = ["| Table | The paper | Ours | Page |", "|---|---|---|---|"]
     gen = load_runs(root / "table1")
     if gen:
         g = gen[0]
         touches = sum(s["touches"] for s in g.metrics["splits"].values())
+        train, test = TABLE1["reconstruction"]["train"], TABLE1["reconstruction"]["test"]
+        table1 = TABLE1["reconstruction"].items()
+        ours = {p: split_sizes(compose_preset(p)) for p in ("paper", "paper_cpu")}
+        same = [p for p, sizes in ours.items() if all(sizes.get(split) == size for split, size in table1)]
+        sizes = f"the same split sizes in {', '.join(f'`{p}`' for p in same)}; " if same else ""
         lines.append(
-            f"| 1: the data | 6,500 / 500 tactile images, 650 / 50 views (reconstruction) | `{g.metrics['preset']}` "
+            f"| 1: the data | reconstruction: {train.tactile:,} / {test.tactile:,} tactile images, {train.visual} / "
+            f"{test.visual} views (train / test) | {sizes}`{g.metrics['preset']}` "
             f"generated whole, {touches:,} touches, in {g.manifest['wall_s'] / 60:.0f} min on "
             f"{', '.join(g.manifest['machine'].split(', ')[:2])} | [table1](docs/reproduce/table1.md) |"
         )
@@ -310,7 +328,7 @@ def render_headline(root: Path) -> str:
                 100 * float(r.metrics["accuracy"]["10"])
             )
     for (name, preset), values in groups.items():
-        cell = f"{_mean_cell(values, 1)}% ({PRETTY_NAMES.get(name, name).lower()}, `{preset}`, {len(values)} seeds)"
+        cell = f"{_mean_cell(values, 1)}% ({PRETTY_NAMES.get(name, name).lower()}, `{preset}`, {_n_seeds(len(values))})"
         if best is None or sum(values) / len(values) > best[0]:
             best = (sum(values) / len(values), cell)
     if best:
@@ -329,7 +347,7 @@ def render_headline(root: Path) -> str:
         line = (
             f"| 3: reconstruction, chamfer x1e-3 | Pixel2Mesh {paper['visual']}, the paper's model with 10 touches "
             f"{paper['tv@10']} ({paper['tv@10'] / paper['visual']:.2f}x) | Pixel2Mesh {_mean_cell(vis)} "
-            f"({len(vis)} seeds), the paper's model {_mean_cell(full)} ({ratio:.2f}x, {len(full)} seeds)"
+            f"({_n_seeds(len(vis))}), the paper's model {_mean_cell(full)} ({ratio:.2f}x, {_n_seeds(len(full))})"
         )
         if "touch_geometry" in groups3:
             tg = [r["modes"]["tv@10"]["chamfer"] for r in groups3["touch_geometry"]]
@@ -348,7 +366,7 @@ def render_headline(root: Path) -> str:
             f"| 4: per class, 10 touches | the paper's model: average {PAPER_TABLE4['full'][-1]}, {p_best} "
             f"{paper4[p_best]} to {p_worst} {paper4[p_worst]} | the paper's model: average "
             f"{_mean_cell(averages)}, {best_c} {means[best_c]:.2f} to {worst_c} {means[worst_c]:.2f} "
-            f"(means over {len(per_class)} seeds) | [table4](docs/reproduce/table4.md) |"
+            f"(means over {_n_seeds(len(per_class))}) | [table4](docs/reproduce/table4.md) |"
         )
     return "\n".join(lines) + "\n"
 
@@ -372,8 +390,10 @@ def render(name: str, root: Path = DEFAULT_ROOT, page: Path | None = None) -> st
         raise ValueError(f"unknown results block {name!r}: known are {', '.join(RENDERERS)}")
     text = RENDERERS[name](root)
     if page is not None:
-        docs = Path(os.path.relpath(root.resolve().parent / "docs", page.resolve().parent)).as_posix()
-        text = text.replace("](docs/", f"]({docs}/")
+        repo, here = root.resolve().parent, page.resolve().parent
+        text = re.sub(
+            r"\]\(docs/([^)]+)\)", lambda m: f"]({Path(os.path.relpath(repo / 'docs' / m[1], here)).as_posix()})", text
+        )
     return text
 
 

@@ -1,5 +1,5 @@
 #!/bin/bash
-# One device call: cls_paper generated on the GPU (issue 24 item 8), the paper's classifier on it, then the press bench (issue 27).
+# One device call: cls_paper generated on the GPU, the paper's classifier on it, then the press bench (bench_gpu.py).
 set -u
 S=$(date +%s); DL=$((S+${BUDGET:-575}))
 left(){ echo $(( DL - $(date +%s) )); }
