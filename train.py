@@ -31,7 +31,6 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from tvrecon.models.warm_start import FreezeParameters, load_initial_weights  # noqa: E402
 from tvrecon.report.csv_resume import restore_csv_history  # noqa: E402
-from tvrecon.report.demo_explain import explain_touches  # noqa: E402
 from tvrecon.report.run import (  # noqa: E402  (also importable from train)
     check_model_matches_data,
     exit_on_sigterm,
@@ -203,8 +202,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             save_results(result, out_dir)
             if cfg.get("tables", True):
                 tables = report_tables([result], out_dir)
-            if cfg.get("explain_touches") and result.get("task") == "reconstruction":
-                print("\n" + explain_touches(result), flush=True)  # make demo: what its own numbers say of the touches
+            if cfg.get("explain_touches") and result.get("task") == "reconstruction":  # make demo (experiment=smoke)
+                from tvrecon.report.demo_explain import explain_touches
+
+                print("\n" + explain_touches(result), flush=True)  # what the run's own numbers say of the touches
     if trainer.is_global_zero:
         csv_path = _csv_metrics(trainer)
         if csv_path is not None:
