@@ -168,21 +168,21 @@ def render_table2(root: Path) -> str:
         )
         lines = []
         by_model: dict[str, list[Run]] = {}
-        for r in mine:
-            by_model.setdefault(f"{r.metrics['name']}, {r.metrics.get('num_touches')} touches", []).append(r)
+        for r in mine:  # a model per touch count, or one for every count (it answers several)
+            n = r.metrics.get("num_touches") if len(r.metrics["accuracy"]) == 1 else "every"
+            by_model.setdefault(f"{r.metrics['name']}, {n} touches", []).append(r)
         for key, model_runs in by_model.items():
             name, touches = key.split(", ")
             seeds = _seeds_phrase([r.manifest for r in model_runs])
             cmd = str(model_runs[0].manifest.get("command"))
             cmd = re.sub(r"\bseed=\d+", "seed=<seed>", cmd) if len(model_runs) > 1 else cmd
             n = touches.split()[0]
-            lines.append(f"- {PRETTY_NAMES.get(name, name)}, {n} touch{'es' * (n != '1')} ({seeds}): `{cmd}`")
+            count = "one model for every number of touches" if n == "every" else f"{n} touch{'es' * (n != '1')}"
+            lines.append(f"- {PRETTY_NAMES.get(name, name)}, {count} ({seeds}): `{cmd}`")
         for s in summaries:
             if s.manifest.get("data_preset") == preset:
-                lines.append(
-                    f"- {', '.join(str(r['model']) for r in s.metrics['rows'][:1])} and the rest of that "
-                    f"table: `{s.manifest.get('command')}`"
-                )
+                models = [str(r["model"]) for r in s.metrics["rows"] if not str(r["model"]).endswith("touches")]
+                lines.append(f"- {'; '.join(models)} (and their controls): `{s.manifest.get('command')}`")
         parts.append(table.to_markdown() + "\nCommands:\n\n" + "\n".join(lines) + "\n")
     return "\n".join(parts)
 
