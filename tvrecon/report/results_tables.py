@@ -132,7 +132,7 @@ def render_table3(root: Path) -> str:
     runs, results = _recon(root)
     table = build_table3_vs_paper(results)
     return (
-        table.to_markdown()
+        table.to_markdown(compact=True)
         + "\nCommands (each row's runs; `<...>` a path of the machine that ran it):\n\n"
         + "\n".join(_group_commands(runs, results))
         + "\n"
@@ -141,12 +141,12 @@ def render_table3(root: Path) -> str:
 
 def render_table4(root: Path) -> str:
     _, results = _recon(root)
-    return build_table4_vs_paper(results).to_markdown()
+    return build_table4_vs_paper(results).to_markdown(compact=True)
 
 
 def render_table3_touches(root: Path) -> str:
     _, results = _recon(root)
-    return build_seed_summary(results).to_markdown()
+    return build_seed_summary(results).to_markdown(compact=True)
 
 
 def _cls(root: Path) -> tuple[list[Run], list[Run]]:
@@ -183,7 +183,7 @@ def render_table2(root: Path) -> str:
             if s.manifest.get("data_preset") == preset:
                 models = [str(r["model"]) for r in s.metrics["rows"] if not str(r["model"]).endswith("touches")]
                 lines.append(f"- {'; '.join(models)} (and their controls): `{s.manifest.get('command')}`")
-        parts.append(table.to_markdown() + "\nCommands:\n\n" + "\n".join(lines) + "\n")
+        parts.append(table.to_markdown(compact=True) + "\nCommands:\n\n" + "\n".join(lines) + "\n")
     return "\n".join(parts)
 
 
@@ -194,7 +194,7 @@ def render_table1(root: Path) -> str:
         "classification": {p: split_sizes(compose_preset(p)) for p in ("cls_paper", "cls_paper_cpu")},
         "reconstruction": {p: split_sizes(compose_preset(p)) for p in ("paper", "paper_cpu")},
     }
-    out = build_table1(ours).to_markdown()
+    out = build_table1(ours).to_markdown(compact=True)
     header = ["Preset", "Split", "Objects", "Touches", "Touches that felt nothing", "Done after (s)"]
     rows, cmds = [], []
     for run in load_runs(root / "table1"):
@@ -214,7 +214,7 @@ def render_table1(root: Path) -> str:
             f"- `{m['command']}`: {m['wall_s'] / 60:.1f} min wall on {m['machine']} ({m['date']}, `{m['commit']}`)"
         )
     gen = Table("Generated whole", header, rows, ["Seconds from the start of the generate command."])
-    return out + "\n" + gen.to_markdown() + "\n" + "\n".join(cmds) + "\n"
+    return out + "\n" + gen.to_markdown(compact=True) + "\n" + "\n".join(cmds) + "\n"
 
 
 def _bench_figure(suite: str, m: Mapping[str, Any]) -> str:
@@ -287,7 +287,7 @@ def render_benchmarks(root: Path) -> str:
         rows,
         ["Each row is a folder results/<suite>/<run>/ (metrics.json, the script's output, manifest.json)."],
     )
-    return table.to_markdown()
+    return table.to_markdown(compact=True)
 
 
 def _n_seeds(n: int) -> str:

@@ -81,11 +81,14 @@ class Table:
     rows: list[list[str]]
     notes: list[str] = field(default_factory=list)
 
-    def to_markdown(self) -> str:
-        """GitHub-flavoured Markdown: ``### title``, the table, then notes as lines."""
+    def to_markdown(self, compact: bool = False) -> str:
+        """GitHub-flavoured Markdown: ``### title``, the table, then notes as lines; ``compact`` leaves the cells
+        unpadded (for pages, where the rendered table lines the columns up)."""
         widths = [max(len(str(c)) for c in col) for col in zip(self.header, *self.rows)] if self.rows else None
         if widths is None:
             widths = [len(h) for h in self.header]
+        if compact:
+            widths = [1] * len(widths)
 
         def line(cells: Sequence[str]) -> str:
             return "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"
