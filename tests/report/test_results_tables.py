@@ -164,3 +164,14 @@ def test_unknown_block_and_missing_manifest_are_clear_errors(tiny_results: Path)
     with pytest.raises(FileNotFoundError, match="full_s1/metrics.json has no manifest.json"):
         load_runs(tiny_results / "table3")
     assert set(RENDERERS) >= {"headline", "table1", "table2", "table3", "table4", "benchmarks"}
+
+
+def test_benchmark_rows_name_each_suites_figure(tiny_results: Path) -> None:
+    ab = {"old_over_new_median": 1.5, "old_over_new_total": 1.4, "old_cpu_s_per_touch": 0.3,
+          "new_cpu_s_per_touch": 0.2, "jobs_not_bit_identical": 0, "jobs": 4}  # fmt: skip
+    _write_run(tiny_results / "bench" / "press_ab" / "a", ab, "python -m benchmarks.probes.bench_press_ab --old abc")
+    runs = {"bench_sim": {"wall_s": 12.4, "returncode": 0}, "bench_press": {"wall_s": 3.0, "returncode": 1}}
+    _write_run(tiny_results / "bench" / "suite" / "k", {"runs": runs}, "python -m benchmarks.run")
+    text = render("benchmarks", tiny_results)
+    assert "1.50x the old code (median; 0.3 -> 0.2 CPU-s a touch), 4 of 4 jobs bit-identical" in text
+    assert "bench_sim 12 s; bench_press 3 s (exit 1)" in text and "`python -m benchmarks.run`" in text

@@ -259,6 +259,16 @@ def _bench_figure(suite: str, m: Mapping[str, Any]) -> str:
             f"{v['touches_without_a_point']} of {v['touches']} touches empty"
             for k, v in m["contact_tests"].items()
         )
+    runs = m.get("runs")
+    if suite == "suite" and isinstance(runs, Mapping):  # python -m benchmarks.run: one record per script
+        return (
+            "; ".join(
+                f"{name} {r.get('wall_s', 0):.0f} s"
+                + ("" if r.get("returncode") == 0 else f" (exit {r.get('returncode')})")
+                for name, r in runs.items()
+            )
+            + " (each script's output in metrics.json)"
+        )
     numbers = [f"{k} {v:.4g}" for k, v in m.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
     return ", ".join(numbers[:4]) or "see metrics.json"
 
