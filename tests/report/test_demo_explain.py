@@ -66,6 +66,7 @@ def test_the_paper_size_figure_and_command_come_from_the_results_folder(tmp_path
     vis = {"task": "reconstruction", "name": "visual_only", "seed": 42, "modes": {"visual": {"chamfer": 12.0}}}
     _run(root / "table3" / "visual_only_s42", vis, "python train.py experiment=visual_only seed=42", None)
     text = explain_touches(SMOKE, results_root=root)
+    assert "on `paper_cpu` (650 training objects of 35 classes) another object's 10 touches" in text  # its config
     assert "another object's 10 touches score 15.0% worse than its own (mean of 2 seeds)" in text  # (20 + 10) / 2
     assert "10 touches give 0.79x Pixel2Mesh's error (1 seed; the paper: 0.38x)" in text  # 9.5 / 12
     assert "`python -m tvrecon.data.generate preset=paper_cpu workers=2`" in text
@@ -76,3 +77,15 @@ def test_the_paper_size_figure_and_command_come_from_the_results_folder(tmp_path
 def test_a_classification_result_is_refused() -> None:
     with pytest.raises(ValueError, match="needs a reconstruction result"):
         explain_touches({"task": "classification", "name": "classify", "accuracy": {}}, results_root=None)
+
+
+def test_the_training_split_is_read_inside_a_hydra_app() -> None:
+    from hydra import compose, initialize_config_dir
+
+    from tvrecon.report.demo_explain import _training_split
+
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    with initialize_config_dir(config_dir=str(configs), version_base="1.3"):  # as in train.py's run
+        compose(config_name="train")
+        assert _training_split("paper_cpu") == " (650 training objects of 35 classes)"
+    assert _training_split("no_such_preset") == ""

@@ -36,6 +36,23 @@ def _pct(a: float, b: float) -> str:
     return f"{100.0 * (a / b - 1.0):+.1f}%"
 
 
+def _training_split(preset: str) -> str:
+    """`` (650 training objects of 35 classes)`` from ``configs/data/<preset>.yaml`` (read as a file: this runs inside
+    train.py's Hydra app, where a second Hydra composition is refused); empty when the file does not say."""
+    from omegaconf import OmegaConf
+
+    from tvrecon.data.presets import CONFIG_DIR
+    from tvrecon.data.shapes.registry import CLASSES
+
+    path = CONFIG_DIR / f"{preset}.yaml"
+    train = OmegaConf.to_container(OmegaConf.load(path)).get("train") if path.is_file() else None  # type: ignore[union-attr]
+    if not isinstance(train, dict) or not isinstance(train.get("num_samples"), int):
+        return ""
+    classes = train.get("classes")
+    n_classes = len(CLASSES) if classes is None else len(classes)
+    return f" ({train['num_samples']} training objects of {n_classes} classes)"
+
+
 def _paper_size_lines(results_root: Path) -> list[str]:
     """What the Table 3 runs under ``results_root`` say of the paper's fusion model at Table 1's size."""
     from tvrecon.report.results_tables import load_runs
@@ -57,9 +74,10 @@ def _paper_size_lines(results_root: Path) -> list[str]:
     walls = [float(r.manifest["wall_s"]) for r in full if r.manifest.get("wall_s")]
     preset = m.get("data_preset")
     command = re.sub(r"\bseed=\d+", f"seed={m.get('seed')}", str(m.get("command")))
+    size = _training_split(str(preset))
     lines = [
-        f"- The paper's fusion reads its touches with Table 1's amount of data: on `{preset}` (650 training objects of "
-        f"35 classes) another object's 10 touches score {worse:.1f}% worse than its own (mean of {len(full)} seeds), "
+        f"- The paper's fusion reads its touches with Table 1's amount of data: on `{preset}`{size} "
+        f"another object's 10 touches score {worse:.1f}% worse than its own (mean of {len(full)} seeds), "
         f"and 10 touches give {ratio:.2f}x Pixel2Mesh's error ({len(visual)} seed{'s' * (len(visual) > 1)}; the paper: "
         f"{paper_touch_ratio():.2f}x). Results: results/table3; page: {PAGE}.",
         f"- The full-size run: `python -m tvrecon.data.generate preset={preset} workers=2`, then `{command}`"
