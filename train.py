@@ -189,6 +189,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             save_results(result, out_dir)
             if cfg.get("tables", True):
                 tables = report_tables([result], out_dir)
+            if cfg.get("explain_touches") and result.get("task") == "reconstruction":  # make demo (experiment=smoke)
+                from tvrecon.report.demo_explain import explain_touches
+
+                print("\n" + explain_touches(result), flush=True)  # what the run's own numbers say of the touches
     if trainer.is_global_zero:
         csv_path = _csv_metrics(trainer)
         if csv_path is not None:

@@ -109,13 +109,15 @@ def test_fast_dev_run_train_prints_tables(tmp_path: Path, capsys: pytest.Capture
         cfg.model.export = False
     out = train(cfg)
     res = out["result"]
-    # smoke also tests with test-time touch refinement (its own Table 3 row)
-    assert res["name"] == "smoke" and set(res["modes"]) == {"visual", "tv@2", "tv@5", "tv@2+refine", "tv@5+refine"}
+    # smoke also tests with test-time touch refinement (its own Table 3 row) and the touch controls
+    modes = {"visual", "tv@2", "tv@5", "tv@2+refine", "tv@5+refine", "tv@5:other", "tv@5:blank"}
+    assert res["name"] == "smoke" and set(res["modes"]) == modes
     assert (tmp_path / "metrics.json").is_file()
     assert (tmp_path / "tables" / "table3.csv").is_file() and (tmp_path / "tables" / "table4.md").is_file()
     printed = capsys.readouterr().out
     assert "Table 3" in printed and "Table 4" in printed and "Ours (smoke, tiny data)" in printed
     assert "Ours (smoke, tiny data) + touch refinement" in printed
+    assert "What the touches did in this run" in printed and "Another object's 5 touches" in printed  # make demo
 
 
 def test_precise_bn_recalibrates_before_the_validation_of_a_real_fit(

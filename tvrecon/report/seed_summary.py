@@ -14,10 +14,10 @@ from typing import Any
 
 from tvrecon.report.table_format import PRETTY_NAMES, RECON_TOUCHES, Table, check_results, mean_std, ordered_rows
 
-__all__ = ["build_seed_summary"]
+__all__ = ["build_seed_summary", "mean_std_cell"]
 
 
-def _cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
+def mean_std_cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
     """``mean +- std`` of the chamfer in the first of ``modes`` each result has; ``-`` unless every result has one."""
     values = []
     for r in results:
@@ -47,10 +47,10 @@ def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[i
         if len(runs) < 2:
             continue
         seeds = ", ".join(str(r.get("seed", "?")) for r in runs)
-        row = [PRETTY_NAMES.get(name, name), seeds, _cell(runs, ["visual"])]
-        row += [_cell(runs, [f"tv@{k}", f"tactile@{k}"]) for k in touches]
-        row += [_cell(runs, [f"tv@{k}+refine", f"tactile@{k}+refine", f"visual+refine@{k}"]) for k in touches]
-        row += [_cell(runs, [f"tv@{k_max}:{c}", f"tactile@{k_max}:{c}"]) for c in ("other", "blank")]
+        row = [PRETTY_NAMES.get(name, name), seeds, mean_std_cell(runs, ["visual"])]
+        row += [mean_std_cell(runs, [f"tv@{k}", f"tactile@{k}"]) for k in touches]
+        row += [mean_std_cell(runs, [f"tv@{k}+refine", f"tactile@{k}+refine", f"visual+refine@{k}"]) for k in touches]
+        row += [mean_std_cell(runs, [f"tv@{k_max}:{c}", f"tactile@{k_max}:{c}"]) for c in ("other", "blank")]
         rows.append(row)
     notes = [
         "Chamfer x1e-3, mean +- sample std over the seeds ('-' where a seed lacks the mode). No touch: every touch "

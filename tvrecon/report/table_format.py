@@ -63,7 +63,7 @@ PRETTY_NAMES: dict[str, str] = {
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
     "classify_paper_cpu": "Tactile classifier",
-    "classify_paper_cpu_upsampled": "Tactile classifier",
+    "classify_paper_cpu_upsampled": "Tactile classifier, images upsampled to 112 px",
     "classify_touch_set": "Touch-set classifier (beyond the paper)",
     "classify_contact_cloud": "Contact-cloud classifier (beyond the paper)",
     "classify_contact_point": "Contact points only (control)",
@@ -81,11 +81,14 @@ class Table:
     rows: list[list[str]]
     notes: list[str] = field(default_factory=list)
 
-    def to_markdown(self) -> str:
-        """GitHub-flavoured Markdown: ``### title``, the table, then notes as lines."""
+    def to_markdown(self, compact: bool = False) -> str:
+        """GitHub-flavoured Markdown: ``### title``, the table, then notes as lines; ``compact`` leaves the cells
+        unpadded (for pages, where the rendered table lines the columns up)."""
         widths = [max(len(str(c)) for c in col) for col in zip(self.header, *self.rows)] if self.rows else None
         if widths is None:
             widths = [len(h) for h in self.header]
+        if compact:
+            widths = [1] * len(widths)
 
         def line(cells: Sequence[str]) -> str:
             return "| " + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths)) + " |"
