@@ -1,6 +1,6 @@
 """The press's time step: how much a paper touch's reading moves, and what it costs, at multiples of the CFL step.
 
-    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_cfl.py [--preset cls_paper]
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python -m benchmarks.physics.bench_cfl [--preset cls_paper]
         [--objects 6] [--factors 0.5 1 1.5 2] [--out benchmarks/results/.../cfl.json]
 
 Each object (class ``first + stride * i`` of ``available_classes()``, instance 0) gets one sweep of the preset's touch
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -25,14 +24,11 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
-from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.data.presets import compose_preset
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches
+from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.sensor.pad import SensorConfig
 
 
 def main() -> None:

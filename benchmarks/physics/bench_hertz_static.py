@@ -1,19 +1,20 @@
-"""Quasi-static Hertz check (issue 15 item 1): the sphere press of ``bench_physics.py`` section 1 read at rest.
+"""Quasi-static Hertz check: the sphere press of ``bench_physics.py`` section 1 read at rest.
 
 The hand stops at a few depths and holds while the grid velocities are damped (dynamic relaxation,
 :mod:`quasi_static`); force and contact radius are the means over the end of each hold, as an indentation
 test reads them. The exponents are log-log fits over the hold depths; the ratios are taken at the hold ``d_cmp``.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size small --out outputs/bench_hertz_static
-    OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size issue --offsets 0.25   # one offset, ~4 CPU-min
-    OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size issue --contact grid --offsets 0.25 --out DIR
-    OMP_NUM_THREADS=1 python benchmarks/bench_hertz_static.py --size tiny --out /tmp/bhs      # smoke run
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size small --out outputs/bench_hertz_static
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size issue --offsets 0.25  # ~4 CPU-min
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size issue --contact grid \\
+        --offsets 0.25 --out DIR
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size tiny --out /tmp/bhs      # smoke run
 
 ``--out`` gets the table (``hertz_static.md``), ``hertz_static.json``, the plot and the per-step traces
 (``hertz_static_traces.npz``: offsets, depth, force, radius, hold), from which one-offset runs can be plotted
 together::
 
-    python benchmarks/bench_hertz_static.py --combine DIR0 DIR1 DIR2 DIR3 --out DIR   # the table and plot of them all
+    python -m benchmarks.physics.bench_hertz_static --combine DIR0 DIR1 DIR2 DIR3 --out DIR  # all in one
 
 ``docs/physics.md`` (section "Why 0.1 c_p misses Hertz, and the reading at rest") has the numbers.
 """
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sim"))  # the physics checks live with the tests
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "sim"))  # until the checks live in tvrecon
 from physics_checks import (
     SlabPress,
     draw_contact_theory,

@@ -1,4 +1,4 @@
-"""The same squeeze in pybullet and MuJoCo: do the two engines' tactile images agree? (issue 26, item 3)
+"""The same squeeze in pybullet and MuJoCo: do the two engines' tactile images agree?
 
 Scene, identical in both engines (no gravity): an object of the library standing fixed at the origin (the
 pick-and-place's prepared mesh, 6.5 cm), and one finger, the MuJoCo gripper's pad box (2.2 x 1 x 3.2 cm), on a
@@ -13,7 +13,7 @@ Prints, per object, each engine's force, penetration, press depth and press cent
 its normal-displacement image (and of all three channels) with pybullet's: MuJoCo with the sensor's default depth
 (the pad's give under MuJoCo's force) and with ``use_penetration=True`` (at least MuJoCo's soft-contact overlap).
 
-Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_mujoco_agreement.py [--objects can cube pear] [--force 20]``.
+Run: ``OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_mujoco_agreement [--objects can cube pear] [--force 20]``.
 """
 
 from __future__ import annotations
@@ -23,19 +23,19 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-import pybullet as p  # noqa: E402
-import torch  # noqa: E402
+import mujoco
+import numpy as np
+import pybullet as p
+import torch
 
-from tvrecon.data.shapes import make_shape  # noqa: E402
-from tvrecon.robot.finger import TactileFinger  # noqa: E402
-from tvrecon.robot.mujoco_scene import FINGER_HALF, _fmt  # noqa: E402
-from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
+from tvrecon.data.shapes import make_shape
+from tvrecon.robot.finger import TactileFinger
+from tvrecon.robot.mujoco_scene import FINGER_HALF, _fmt
+from tvrecon.robot.mujoco_sensor import TactileSensor
 from tvrecon.robot.pad import LazySimulator
-from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pad_config import PadConfig
 from tvrecon.robot.pad_reading import FingerReading
-from tvrecon.robot.scene import collision_shape_for_mesh, prepare_object_mesh  # noqa: E402
+from tvrecon.robot.scene import collision_shape_for_mesh, prepare_object_mesh
 
 
 def corr(a: np.ndarray, b: np.ndarray) -> float:

@@ -1,7 +1,7 @@
 """Where a contact patch leaves the surface: point-to-surface distance by push depth, and what each contact test keeps.
 
-    PROJECT_ROOT=$PWD .venv/bin/python benchmarks/bench_patch_rim.py [--preset paper_cpu] [--split test] [--every 5]
-        [--out benchmarks/results/<dir>/patch_rim.png]
+    PROJECT_ROOT=$PWD .venv/bin/python -m benchmarks.physics.bench_patch_rim [--preset paper_cpu] [--split test]
+        [--every 5] [--out benchmarks/results/<dir>/patch_rim.png]
 
 A touch's contact patch (:func:`tvrecon.sim.sensor.patch.contact_patch`) is the pad's contact layer mapped back to
 world points, kept where the pad was pushed in. The points of a contact's rim are pushed in a little because their
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -31,12 +30,12 @@ import numpy as np
 import torch
 import trimesh
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks._common import ROOT
+
 os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
-from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.losses.chamfer import chamfer_terms  # noqa: E402
+from tvrecon.data.presets import compose_preset
+from tvrecon.losses.chamfer import chamfer_terms
 
 BANDS = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 9.0)]
 TESTS = {  # name: (patch_min_push, patch_min_push_fraction)

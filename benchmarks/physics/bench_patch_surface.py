@@ -1,11 +1,11 @@
 """How far the contact patches lie from the object's surface, grid against particle contact (not a test).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_patch_surface.py [--touches 12] [--pad 32 --layers 4
+    OMP_NUM_THREADS=1 PYTHONPATH=. python -m benchmarks.physics.bench_patch_surface [--touches 12] [--pad 32 --layers 4
         --n-grid 64]
 
 Each touch (one class of ``available_classes()`` each, seeded cone-policy touch; default: the ``cls_paper_cpu`` pad,
-32x32x4 on 64^3) is pressed with ``PressConfig(contact="grid", threshold_grid=None)`` (the press before issue 15
-item 1) and with the default (particle contact, threshold in 128-grid cells). The contact patch of each reading
+32x32x4 on 64^3) is pressed with ``PressConfig(contact="grid", threshold_grid=None)`` (the former
+default press) and with the default (particle contact, threshold in 128-grid cells). The contact patch of each reading
 (:func:`tvrecon.sim.press.reading.reading_patch`: the pushed-in taxels, normal channel > ``DEFAULT_MIN_PUSH``, mapped
 back to world points) is compared with the mesh: signed distance of every patch point (trimesh, > 0 inside the object),
 in grid cells. Prints per contact the patch points, their mean |distance|, the share within 0.2 cells and the mean
@@ -16,21 +16,17 @@ largest normal displacement, the largest shear and the share of taxels pushed in
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.press.reading import reading_patch  # noqa: E402
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.press.reading import reading_patch
+from tvrecon.sim.sensor.pad import SensorConfig
 
 CONTACTS = {"grid (before)": {"contact": "grid", "threshold_grid": None}, "particle (default)": {}}
 

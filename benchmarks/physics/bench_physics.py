@@ -1,8 +1,8 @@
-"""Physics validation of the solver (issue 15 item 2): Hertz contact, stiffness scaling, release, resolution
+"""Physics validation of the solver: Hertz contact, stiffness scaling, release, resolution
 convergence, momentum and energy. Prints a table and writes plots to ``--out``.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_physics.py --size small --out outputs/bench_physics   # ~3 CPU-min
-    OMP_NUM_THREADS=1 python benchmarks/bench_physics.py --size full --out outputs/bench_physics    # idle machine
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_physics --size small --out outputs/bench_physics   # ~3 CPU-min
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_physics --size full --out outputs/bench_physics  # idle CPU
 
 ``small`` is a scaled-down version of every check; ``full`` uses the sizes of the issue's targets (a 128-cell pad
 12 cells thick for Hertz, n_grid 128 vs 256 for the images, 64 / 128 / 256 for the stop depth). The scenes and the
@@ -29,7 +29,7 @@ from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press.config import DEFAULT_THRESHOLD
 from tvrecon.sim.sensor import SensorConfig
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sim"))  # the physics checks live with the tests
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "sim"))  # until the checks live in tvrecon
 from physics_checks import (
     draw_contact_theory,
     free_oscillation,
@@ -227,7 +227,7 @@ THRESHOLD_GRID = 128
 def bench_resolution(size: dict, contact: str = "grid", threshold_grid: int | None = None) -> dict:
     """Depth at the terminal-chamfer stop over ``size["grids"]`` and the image correlation of ``size["pair"]`` at one
     physical depth, with ``PressConfig.contact`` and ``threshold_grid`` as given (defaults: the grid contact and the
-    threshold in the press's own cells, the default press before issue 15 item 1)."""
+    threshold in the press's own cells, the former default press)."""
     from tvrecon.sim.__main__ import load_shape
 
     opts = {"contact": contact, "threshold_grid": threshold_grid}

@@ -1,4 +1,4 @@
-"""Depth at the physical stop across n_grid, one discretization changed at a time (issue 15 item 1).
+"""Depth at the physical stop across n_grid, one discretization changed at a time.
 
 The gear press of ``bench_physics.py`` section 4 (``scaled_pad``: the same physical pad at every n_grid) with
 ``contact="particle"`` and ``threshold_grid=128``; prints the stop depth per n_grid and its ratio to the finest, the
@@ -12,20 +12,21 @@ physical force at every grid (the threshold rule's stops at 128 and 256, 0.00273
 and 1.250e-2). At the default 0.1 c_p the force at first contact is an impact peak (1.6e-2 to 2.1e-2) followed by
 a plateau near 1.25e-2, so a force at the threshold stop's (0.0127) stops at the third step in contact at every
 grid; the default 0.03 is above both.
-``--contact grid`` presses with the grid contact (the default before issue 15 item 1); ``--speed-fraction``
+``--contact grid`` presses with the grid contact (the former default); ``--speed-fraction``
 sets the hand speed (default 0.1 c_p). ``--shapes`` presses other objects of the library (``tvrecon.data.shapes``,
 or ``sphere``) the same way, from the top at their ``touch_position``, and ends with one summary row per shape;
 ``all`` is the whole library. A press that reaches its travel limit before the rule is marked ``travel``.
 ``--terminal displacement`` stops on the particle-matched displacement instead of eq. 12 (``PressConfig.terminal``).
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256                   # the default step
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --dt-factor 0.25  # 4x smaller step
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 --dt-factor 0.25 --iterations 6 --spacing 0.25
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --rule force      # a force stop
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --contact grid    # grid contact
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --speed-fraction 0.03 \\
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256  # the default step
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256 --dt-factor 0.25  # 4x smaller
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 --dt-factor 0.25 \\
+        --iterations 6 --spacing 0.25
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256 --rule force      # a force stop
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256 --contact grid    # grid contact
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256 --speed-fraction 0.03 \\
         --rule force --force 0.0098                                                              # a slower press
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_depth.py --grids 64 128 256 --shapes sphere ball egg  # other objects
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256 --shapes sphere ball egg
 
 ``docs/physics.md`` ("Why n_grid 64 stops 18% deeper", "A stop at one force", "The same stops at 0.03 c_p") has the
 numbers.
@@ -38,8 +39,8 @@ import time
 
 import torch
 import trimesh
-from bench_physics import _corr, scaled_pad
 
+from benchmarks.physics.bench_physics import _corr, scaled_pad
 from tvrecon.data.shapes import available_classes, make_shape
 from tvrecon.sim.mpm import MPMConfig, cfl_dt, particle_contact
 from tvrecon.sim.press import EIPSimulator, PressConfig

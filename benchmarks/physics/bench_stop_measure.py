@@ -1,4 +1,4 @@
-"""Why the terminal chamfer's stop depth changes with n_grid on flat faces (issue 15): eq. 12 against the
+"""Why the terminal chamfer's stop depth changes with n_grid on flat faces: eq. 12 against the
 displacement it stands for, on objects of the library.
 
 Each shape is pressed from the top as in ``bench_stop_depth.py`` (``scaled_pad``, particle contact, 0.1 c_p, the
@@ -16,8 +16,9 @@ press's own stop). Per shape and grid the table gives both depths (domain units)
 and at the chamfer stop the in-plane share of the displacement and the largest in-plane motion in lattice spacings.
 ``travel``: the press reached its travel limit (``max_depth``, 4 cells of its own grid) before the chamfer threshold.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_measure.py --grids 64 128 256 --shapes cube gear ball pencil
-    OMP_NUM_THREADS=1 python benchmarks/bench_stop_measure.py --shapes gear cube --plot docs/img/stop_measure.png
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_measure --grids 64 128 256 --shapes cube gear ball pencil
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_measure --shapes gear cube \\
+        --plot docs/img/stop_measure.png
 
 ``--plot`` saves, per shape, the contact layer at each grid's chamfer stop: the centred normal displacement and the
 in-plane motion in lattice spacings (the chamfer saturates above 0.5).
@@ -29,9 +30,9 @@ import argparse
 import time
 
 import torch
-from bench_physics import scaled_pad
-from bench_stop_depth import shape_mesh
 
+from benchmarks.physics.bench_physics import scaled_pad
+from benchmarks.physics.bench_stop_depth import shape_mesh
 from tvrecon.data.shapes import available_classes
 from tvrecon.sim.press import EIPSimulator, PressConfig
 from tvrecon.sim.press.stop_rules import terminal_chamfer, threshold_cells

@@ -1,15 +1,16 @@
 """What ``press.collider_refine`` buys and costs on a data preset's touches, both values in one process.
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_collider_refine.py --preset cls_paper_cpu \
+    OMP_NUM_THREADS=1 PYTHONPATH=. python -m benchmarks.probes.bench_collider_refine --preset cls_paper_cpu \
         --classes spoon,screwdriver,scissors,pan,ladle,fork,key,knife,bottle,mug --objects 2 --refine 1,2
 
 Builds the preset's ``train`` dataset once per refine value (no cache; everything else the preset's) and generates
 the same objects with each, alternating per object so that both see the same load. Per refine value: the touches
 that felt something (the reading's ``contact``: a force at some step), CPU seconds per touch (``time.process_time``,
-one torch thread), of which the set-up (``EIPSimulator._place``, what ``place_batch`` runs: frames, footprint rays,
-the mesh collider whose table the refinement enlarges), and per class the touches felt. The ratio is of total CPU
-seconds against the first refine value, measured in this process. ``press.compile`` is the preset's unless
-overridden (``press.compile=false`` times the eager solver without a compile in the first object).
+one torch thread) and per class the touches felt. The ratio is of total CPU seconds against the first refine value,
+measured in this process. The set-up alone (frames, footprint rays, the mesh collider whose table the refinement
+enlarges) is what ``EIPSimulator.place_batch`` runs; ``benchmarks/speed/bench_gpu.py`` times it apart.
+``press.compile`` is the preset's unless overridden (``press.compile=false`` times the eager solver without a compile
+in the first object).
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ import torch
 from hydra.utils import instantiate
 
 from tvrecon.data.presets import compose_preset
-from tvrecon.sim.press.simulator import EIPSimulator
 
 
 def main() -> None:
@@ -39,17 +39,6 @@ def main() -> None:
     classes = args.classes.split(",")
     refines = [int(r) for r in args.refine.split(",")]
 
-    setup = {"cpu": 0.0}
-    place = EIPSimulator._place
-
-    def timed_setup(self, *a, **k):
-        c0 = time.process_time()
-        try:
-            return place(self, *a, **k)
-        finally:
-            setup["cpu"] += time.process_time() - c0
-
-    EIPSimulator._place = timed_setup  # type: ignore[method-assign]  # noqa: SLF001 - timing the set-up alone
     sets = {}
     for r in refines:
         cfg = compose_preset(args.preset, ["cache_dir=null", f"press.collider_refine={r}", *args.overrides])
@@ -61,31 +50,29 @@ def main() -> None:
         f"{args.preset} {' '.join(args.overrides)}: pad {first.sensor.resolution} x {first.sensor.layers} on "
         f"{first.press.n_grid}^3, {first.touches_per_item} touches per object, {len(first)} objects, refine {refines}"
     )
-    res = {r: {"cpu": 0.0, "setup_cpu": 0.0, "touches": 0, "felt": 0, "per_class": {}} for r in refines}
+    res = {r: {"cpu": 0.0, "touches": 0, "felt": 0, "per_class": {}} for r in refines}
     for i in range(len(first)):
         cls, _ = first.object_of(i)
         line = f"  {cls:12s}"
         for r in refines:
-            setup["cpu"] = 0.0
             c0 = time.process_time()
             raw = sets[r].generate(i)
             cpu = time.process_time() - c0
             felt, m = int(raw["contact"].sum()), len(raw["contact"])
             out = res[r]
             out["cpu"] += cpu
-            out["setup_cpu"] += setup["cpu"]
             out["touches"] += m
             out["felt"] += felt
             pc = out["per_class"].setdefault(cls, [0, 0])
             pc[0], pc[1] = pc[0] + felt, pc[1] + m
-            line += f" | refine {r}: felt {felt}/{m}, {cpu / m:.3f} CPU-s/touch (set-up {setup['cpu'] / m:.3f})"
+            line += f" | refine {r}: felt {felt}/{m}, {cpu / m:.3f} CPU-s/touch"
         print(line, flush=True)
     base = res[refines[0]]["cpu"]
     for r in refines:
         o = res[r]
         print(
-            f"refine {r}: felt {o['felt']}/{o['touches']}, {o['cpu'] / o['touches']:.3f} CPU-s/touch (set-up "
-            f"{o['setup_cpu'] / o['touches']:.3f}), total CPU / refine {refines[0]}: {o['cpu'] / base:.3f}"
+            f"refine {r}: felt {o['felt']}/{o['touches']}, {o['cpu'] / o['touches']:.3f} CPU-s/touch, "
+            f"total CPU / refine {refines[0]}: {o['cpu'] / base:.3f}"
         )
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,8 @@
 """The compiled step's C++ P2G scatter and G2P gather of an earlier commit against the working tree's, on the same
 inputs, in one process (not a test).
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_cpp_loops.py --old REV [--scene paper|bench] [--batch 10] [--rounds 15]
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.bench_cpp_loops --old REV [--scene paper|bench] [--batch 10]
+        [--rounds 15]
 
 One warm ``press_batch`` of ``bench_gpu.py``'s scene (``paper``: the authors' 61x61x10 pad, n_grid 128, one object's
 paper sweep, ``--batch`` touches; ``bench``: the 48x48x12 pad on a sphere) is pressed with ``compile=True`` on one
@@ -19,25 +20,18 @@ import argparse
 import ctypes
 import statistics
 import subprocess
-import sys
 import time
 import warnings
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gpu import SCENES, _tile  # noqa: E402
-
-import tvrecon.sim.mpm.compiled.gather as gather  # noqa: E402
-import tvrecon.sim.mpm.compiled.scatter as scatter  # noqa: E402
-import tvrecon.sim.mpm.compiled.step as compiled_step  # noqa: E402
-from tvrecon.sim import EIPSimulator  # noqa: E402
-from tvrecon.sim.mpm.compiled.cpp_loop import ptr  # noqa: E402
+import tvrecon.sim.mpm.compiled.gather as gather
+import tvrecon.sim.mpm.compiled.scatter as scatter
+import tvrecon.sim.mpm.compiled.step as compiled_step
+from benchmarks._common import ROOT, SCENES, tile
+from tvrecon.sim import EIPSimulator
+from tvrecon.sim.mpm.compiled.cpp_loop import ptr
 
 
 def old_source(rev: str, module: str) -> str:
@@ -66,11 +60,11 @@ def capture(scene: str, batch: int, step: int) -> dict[str, list]:
 
     sensor, press, mesh, pos, dirs, strength = SCENES[scene]("cpu")
     sim = EIPSimulator(sensor, press, device=torch.device("cpu"), compile=True)
-    sim.press_batch(mesh, _tile(pos, batch), _tile(dirs, batch), **strength)  # compile, warm caches
+    sim.press_batch(mesh, tile(pos, batch), tile(dirs, batch), **strength)  # compile, warm caches
     p2g, g2p = compiled_step.fused_p2g, compiled_step.fused_g2p
     compiled_step.fused_p2g, compiled_step.fused_g2p = keep("p2g", p2g), keep("g2p", g2p)
     try:
-        sim.press_batch(mesh, _tile(pos, batch), _tile(dirs, batch), **strength)
+        sim.press_batch(mesh, tile(pos, batch), tile(dirs, batch), **strength)
     finally:
         compiled_step.fused_p2g, compiled_step.fused_g2p = p2g, g2p
     if len(seen) != 2:

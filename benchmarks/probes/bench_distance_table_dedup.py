@@ -1,7 +1,7 @@
 """The mesh distance table before and after the distinct surface samples (2026-11-27): CPU time and error against the
 exact distance, touch by touch, on the paper scene.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_distance_table_dedup.py [--exact 4]
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.bench_distance_table_dedup [--exact 4]
 
 The paper scene of ``bench_gpu.py`` (the authors' 61x61x10 pad, n_grid 128, one object's paper sweep), each touch's
 collider built as ``place_batch`` builds it. ``surface_samples`` gives every triangle its own lattice, so a vertex
@@ -17,24 +17,18 @@ trimesh's exact closest point (cells).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gpu import paper_scene  # noqa: E402
-
-from tvrecon.sim import EIPSimulator  # noqa: E402
-from tvrecon.sim.bodies import mesh_distance  # noqa: E402
-from tvrecon.sim.bodies.voxelize import surface_samples  # noqa: E402
+from benchmarks._common import paper_scene
+from tvrecon.sim import EIPSimulator
+from tvrecon.sim.bodies import mesh_distance
+from tvrecon.sim.bodies.voxelize import surface_samples
 
 
 def plain_distance(nodes, lo_i, dims, surface, dx, cap) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Paper-preset touches pressed by an earlier commit's simulator and by the working tree, in one process (not a test).
 
-    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_ab.py --old REV [--touches 4]
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python -m benchmarks.probes.bench_press_ab --old REV [--touches 4]
         [--first 1] [--stride 3] [--eager] [--contact grid|particle] [--preset cls_paper] [--per-object 1]
 
 ``git archive REV tvrecon`` is unpacked into a temporary folder as the package ``tvrecon_old`` (imports renamed), so
@@ -10,9 +10,8 @@ thread, with ``compile=True`` unless ``--eager``. Prints per touch the CPU secon
 differences (image in grid cells, relative force; whether the whole reading is bit-identical: :func:`identical`), then
 the median and total ratio. ``--per-object N``: each job is N touches of one object, pressed on one mesh object by
 ``simulate_touches`` (those of one strength in one ``press_batch`` call) as ``generate`` presses an item; CPU-s per
-touch, the readings of all N compared.
-Used for each step of issue 13
-step 3 (benchmarks/README.md); only ratios from one process mean something on a loaded machine. ``--contact`` sets
+touch, the readings of all N compared. Only ratios from one process mean something on a loaded machine.
+``--contact`` sets
 ``PressConfig.contact`` of both (the old revision must know the field). ``--preset NAME`` takes the pad, the press
 and the touch policy of that data preset instead (e.g. ``cls_paper``: the authors' 61x61x10 pad, the object at 0.16 of
 the domain, the paper's touches through its centre 12% deep), its ``press.compile`` aside.
@@ -21,7 +20,7 @@ the domain, the paper's touches through its centre 12% deep), its ``press.compil
 from __future__ import annotations
 
 import argparse
-import importlib
+import importlib.util
 import io
 import re
 import statistics
@@ -38,15 +37,13 @@ import trimesh
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
-from tvrecon.sim.mpm.state import CONTACT_MODES  # noqa: E402
-from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from benchmarks._common import ROOT
+from tvrecon.data.presets import compose_preset
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches, simulate_touches
+from tvrecon.sim.mpm.state import CONTACT_MODES
+from tvrecon.sim.press import EIPSimulator, PressConfig
+from tvrecon.sim.sensor.pad import SensorConfig
 
 
 def import_old(rev: str, where: Path):
@@ -56,10 +53,14 @@ def import_old(rev: str, where: Path):
     (where / "tvrecon").rename(where / "tvrecon_old")
     for f in (where / "tvrecon_old").rglob("*.py"):
         f.write_text(re.sub(r"\btvrecon\b(?=[. ])", "tvrecon_old", f.read_text()))
-    sys.path.insert(0, str(where))
-    import tvrecon_old.sim.press as old_press
-
-    return old_press
+    root = where / "tvrecon_old"
+    spec = importlib.util.spec_from_file_location(
+        "tvrecon_old", root / "__init__.py", submodule_search_locations=[str(root)]
+    )
+    package = importlib.util.module_from_spec(spec)
+    sys.modules["tvrecon_old"] = package  # its submodules import each other by this name
+    spec.loader.exec_module(package)
+    return importlib.import_module("tvrecon_old.sim.press")
 
 
 def identical(ra, rb) -> bool:
@@ -95,7 +96,7 @@ def main() -> None:
             press_kw = {k: v for k, v in OmegaConf.to_container(cfg.press).items() if k != "compile"} | kw
             policy = instantiate(cfg.touch)
         new = EIPSimulator(SensorConfig(**sensor_kw), PressConfig(**press_kw), compile=comp)
-        # SensorConfig left tvrecon.sim.press in the layout of issue 25
+        # older layouts: SensorConfig lived in tvrecon.sim.press
         old_pad = importlib.import_module("tvrecon_old.sim.sensor.pad")
         old_sensor = getattr(op, "SensorConfig", None) or old_pad.SensorConfig
         old = op.EIPSimulator(old_sensor(**sensor_kw), op.PressConfig(**press_kw), compile=comp)

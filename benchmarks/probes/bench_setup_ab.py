@@ -1,7 +1,7 @@
 """A touch's set-up (``placement.place_touch``: frame, touch point, mesh collider) by an earlier commit and by the
 working tree, in one process (not a test).
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_setup_ab.py --old REV [--objects 4] [--per-object 10] [--repeats 3]
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.bench_setup_ab --old REV [--objects 4] [--per-object 10] [--repeats 3]
 
 The older ``tvrecon`` is imported as ``tvrecon_old`` (``bench_press_ab.import_old``). Paper preset (64x64x6 pad,
 n_grid 128), object ``i`` of class ``7 i`` of ``available_classes()`` (wrapping) with ``--per-object`` seeded
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import tempfile
 import time
 import warnings
@@ -26,29 +25,12 @@ from pathlib import Path
 import torch
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_press_ab import import_old  # noqa: E402
-
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
-from tvrecon.sim.press import EIPSimulator, PressConfig, placement  # noqa: E402
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
-
-
-def same(a, b) -> bool:
-    """Both placements unreachable, or the same touch point and bit-identical collider tables."""
-    if (a.collider is None) != (b.collider is None):
-        return False
-    if not torch.equal(a.origin, b.origin):
-        return False
-    ca, cb = a.collider, b.collider
-    return ca is None or (
-        torch.equal(ca.node_sdf, cb.node_sdf)
-        and torch.equal(ca.node_normal, cb.node_normal)
-        and ca.n_samples == cb.n_samples
-    )
+from benchmarks._common import same
+from benchmarks.probes.bench_press_ab import import_old
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches
+from tvrecon.sim.press import EIPSimulator, PressConfig, placement
+from tvrecon.sim.sensor.pad import SensorConfig
 
 
 def apart(a, b, dx: float) -> dict[str, float]:

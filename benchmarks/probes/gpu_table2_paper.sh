@@ -1,16 +1,16 @@
 #!/bin/bash
-# Table 2 at the paper's size on one GPU, in one device call of about 9.5 minutes (issue 24, item 8):
+# Table 2 at the paper's size on one GPU, in one device call of about 9.5 minutes:
 # cls_paper (the authors' 61x61x10 pad on the 128 grid, 7,700 touches, shared_base) generated on the GPU with one
 # worker per host core (~7.6 min on an H100, 2026-11-27: train 268 s, val 65 s, test ~125 s), then the paper's
 # classifier on it, four runs at once (~100 s for the four on an H100), results under $OUT (default ./gpu_table2_out).
 # A call cut short leaves the cache in $CACHE: a second call on the same warm machine makes only what is missing.
 #
-#   bash benchmarks/gpu_table2_paper.sh                      # BUDGET=585 seconds in all; WORKERS=<host cores>
+#   bash benchmarks/probes/gpu_table2_paper.sh                      # BUDGET=585 seconds in all; WORKERS=<host cores>
 #
 # A smoke run of the same steps on a CPU (3 objects a split, one epoch):
 #   SIM_DEVICE=cpu WORKERS=2 GEN_ARGS="train.num_objects=3 val.num_objects=3 test.num_objects=3" \
 #   TRAIN_ARGS="trainer.accelerator=cpu trainer.precision=32-true data.train.num_objects=3 data.val.num_objects=3 \
-#   data.test.num_objects=3 trainer.max_epochs=1" bash benchmarks/gpu_table2_paper.sh
+#   data.test.num_objects=3 trainer.max_epochs=1" bash benchmarks/probes/gpu_table2_paper.sh
 #
 # Missing Python packages travel as wheels in .whl/ (docs/gpu.md, "A machine with no network"); they are installed
 # into /tmp/site when the project's packages are not importable. Each step is bounded so that the results of the steps done come back.

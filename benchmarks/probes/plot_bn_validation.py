@@ -1,7 +1,7 @@
 """Validation chamfer per epoch with each checkpoint's stored BatchNorm statistics and with recomputed ones.
 
-    python benchmarks/plot_bn_validation.py --run <train.py run dir> [--run ...] --evals <eval.py output dir> [...]
-        --out benchmarks/results/<dir>/bn_validation.png [--csv <file>]
+    python -m benchmarks.probes.plot_bn_validation --run <train.py run dir> [--run ...] --evals <eval.py output dir>
+        [...] --out <dir>/bn_validation.png [--csv <file>]
 
 The stored curve is the run's own ``csv/metrics.csv`` (``val/chamfer`` per epoch, as train.py logged it). The
 recomputed points are ``eval.py split=val bn_recalibrate_batches=K`` results of the run's epoch checkpoints
@@ -24,7 +24,7 @@ import matplotlib
 import matplotlib.ticker
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 
 def stored_curve(run: Path) -> dict[int, float]:

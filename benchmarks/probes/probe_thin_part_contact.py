@@ -8,8 +8,8 @@ that touch alone with the particle contact's constants as they are and with the 
 ``PUSH_CAP_CELLS``, the most a particle found inside is pushed out per step; ``PUSH_OUT``), and prints per variant
 whether it pressed, in how many steps, and the pad's largest stretch (largest singular value of F) every 8 steps.
 
-    python benchmarks/probe_thin_part_contact.py                      # the defaults and the two variants below
-    python benchmarks/probe_thin_part_contact.py ITERATIONS=2 PUSH_CAP_CELLS=0.02
+    python -m benchmarks.probes.probe_thin_part_contact                      # the defaults and the two variants below
+    python -m benchmarks.probes.probe_thin_part_contact ITERATIONS=2 PUSH_CAP_CELLS=0.02
 
 About 10 CPU-s a variant (the authors' 61 x 61 x 10 pad on the 128 grid, one thread). Nothing is cached.
 """

@@ -1,7 +1,7 @@
 """What ``compile="auto"`` costs and saves: ``python -m tvrecon.data.generate`` eager and compiled, cold and warm
 compile cache, at two job sizes; the break-even it implies and what auto chooses for the whole preset (not a test).
 
-    python benchmarks/bench_compile_auto.py [--preset small] [--items 3 8] [--out results.json] [--compiled-only]
+    python -m benchmarks.speed.bench_compile_auto [--preset small] [--items 3 8] [--out results.json] [--compiled-only]
         [--set KEY=VALUE ...]
 
 Five ``generate`` processes, one worker each (one torch thread), every one on an empty data cache so that every item
@@ -33,8 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks._common import ROOT
 
 CHILD = """
 import json, sys, torch

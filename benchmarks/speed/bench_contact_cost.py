@@ -1,7 +1,7 @@
 """What the particle contact costs against the grid contact, paper-preset touches in one process (not a test).
 
-    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_contact_cost.py [--touches 6] [--first 0]
-        [--eager]
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python -m benchmarks.speed.bench_contact_cost [--touches 6]
+        [--first 0] [--eager]
 
 Each touch (one class of ``available_classes()`` each, from ``--first``; seeded cone-policy touch; paper preset: 64x64x6
 pad, n_grid 128, the paper's stop threshold in its own cells) is pressed with ``PressConfig(contact="grid")`` and
@@ -15,19 +15,15 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig
 
 MODES = ("grid", "particle")
 

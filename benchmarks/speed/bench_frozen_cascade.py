@@ -13,23 +13,18 @@ B = 8 views of 128 px, T = 10 touches of 64 px maps, plus contact patches of 31 
 and prints the ratios, the share of parameters trained, and checks that a step with a non-zero learning rate leaves
 every frozen entry (weights and BatchNorm statistics) as it was.
 
-    .venv/bin/python benchmarks/bench_frozen_cascade.py [--threads 1] [--repeats 3]
+    .venv/bin/python -m benchmarks.speed.bench_frozen_cascade [--threads 1] [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_train_step import build_module, synthetic_batch, time_steps, train_step  # noqa: E402
-
-from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
-from tvrecon.models.warm_start import FreezeParameters  # noqa: E402
+from benchmarks.speed.bench_train_step import build_module, synthetic_batch, time_steps, train_step
+from tvrecon.models.lit_recon import ReconstructionModule
+from tvrecon.models.warm_start import FreezeParameters
 
 FROZEN = ("net.visual", "net.deformer.stages")
 

@@ -1,8 +1,8 @@
 """Press throughput against batch size on one device: touches/s, particle-steps/s, peak memory, ops and syncs per step.
 
-    python benchmarks/bench_gpu.py                                   # CPU: batches 1,2,4,8, eager and compiled
-    python benchmarks/bench_gpu.py --device cuda --out bench_gpu.json   # a GPU: batches 1 .. 1024 until memory runs out
-    python benchmarks/bench_gpu.py --device cuda --scenes bench --modes eager --batches 64 --profile 64  # + top ops
+    python -m benchmarks.speed.bench_gpu                                   # CPU: batches 1,2,4,8, eager and compiled
+    python -m benchmarks.speed.bench_gpu --device cuda --out bench_gpu.json  # GPU: batches 1 .. 1024 or OOM
+    python -m benchmarks.speed.bench_gpu --device cuda --scenes bench --modes eager --batches 64 --profile 64
 
 Two scenes, both through the public press API (``EIPSimulator.press_batch``, one solver loop for B touches):
 
@@ -41,51 +41,18 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import resource
-import sys
 import time
 import warnings
 from pathlib import Path
 
 import torch
-import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hydra.utils import instantiate  # noqa: E402
-
-from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
-from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
-from tvrecon.sim.mpm.solver import MLSMPM  # noqa: E402
-from tvrecon.sim.press.loop import PressLoop  # noqa: E402
-from tvrecon.utils.op_counter import OpCounter, ProfiledCounter, kernel_profile, per_step  # noqa: E402
-
-
-def paper_scene(device: str) -> tuple[SensorConfig, PressConfig, trimesh.Trimesh, torch.Tensor, torch.Tensor, dict]:
-    """The authors' pad and grid with one object's paper sweep (``preset=paper``, first training object)."""
-    cfg = compose_preset("paper", ["cache_dir=null"])
-    ds = instantiate(cfg, _convert_="all").make_dataset("train")
-    mesh = ds.mesh(0)
-    sim = EIPSimulator(ds.sensor, ds.press, device=device)
-    t = sample_touches(mesh, 10, seed=0, policy=ds.touch, sim=sim)
-    if any(s != t.strengths[0] for s in t.strengths):
-        raise RuntimeError("the paper sweep's touches of one object should share one stop rule")
-    return ds.sensor, ds.press, mesh, t.positions, t.directions, dict(t.strengths[0])
-
-
-def bench_scene(device: str) -> tuple[SensorConfig, PressConfig, trimesh.Trimesh, torch.Tensor, torch.Tensor, dict]:
-    """``bench_sim.py``'s scene as a press: 48x48x12 pad, n_grid 128 on the unit domain, a sphere of radius 0.1."""
-    sensor = SensorConfig(resolution=(48, 48), layers=12)
-    press = PressConfig(n_grid=128, domain_size=1.0)
-    mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
-    pos = torch.tensor([[0.0, 0.0, 0.1]])
-    dirs = torch.tensor([[0.0, 0.0, -1.0]])
-    return sensor, press, mesh, pos, dirs, {}
-
-
-SCENES = {"paper": paper_scene, "bench": bench_scene}
+from benchmarks._common import SCENES, tile
+from tvrecon.sim import EIPSimulator
+from tvrecon.sim.mpm.solver import MLSMPM
+from tvrecon.sim.press.loop import PressLoop
+from tvrecon.utils.op_counter import OpCounter, ProfiledCounter, kernel_profile, per_step
 
 
 def _sync(device: torch.device) -> None:
@@ -103,16 +70,11 @@ def _peak_mib(device: torch.device) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**10  # KiB on Linux
 
 
-def _tile(x: torch.Tensor, b: int) -> torch.Tensor:
-    """(T, 3) -> (b, 3): the touches repeated until the batch is full."""
-    return x.repeat(math.ceil(b / x.shape[0]), 1)[:b]
-
-
 def run_one(sim: EIPSimulator, mesh, pos, dirs, strength: dict, b: int, device: torch.device) -> tuple[float, list]:
     """Seconds (wall on CUDA, CPU elsewhere) and readings of one ``press_batch`` of ``b`` touches."""
     _sync(device)
     t0 = _clock(device)
-    readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)
+    readings = sim.press_batch(mesh, tile(pos, b), tile(dirs, b), **strength)
     _sync(device)
     return _clock(device) - t0, readings
 
@@ -146,7 +108,7 @@ def count_ops(
 
     def run(max_steps: int | None) -> int:
         limit = {} if max_steps is None else {"max_steps": max_steps}
-        readings = sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength, **limit)
+        readings = sim.press_batch(mesh, tile(pos, b), tile(dirs, b), **strength, **limit)
         return max(int(r.steps) for r in readings)
 
     saved = MLSMPM.chunk_size, MLSMPM.deferred_polar, MLSMPM.contact_skin, MLSMPM.node_major_p2g, PressLoop.read_every
@@ -157,7 +119,7 @@ def count_ops(
         layout = "cpu chunks" if chunks and device.type == "cpu" else "one pass, deferred polar, list, 4 steps a read"
         with kernel_profile() if compiled else contextlib.nullcontext():
             # warm caches (placement, SDF) like a real run; compiled: every graph, and its recompiles, compiled here
-            sim.press_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)
+            sim.press_batch(mesh, tile(pos, b), tile(dirs, b), **strength)
             counts = per_step(run, ProfiledCounter if compiled else OpCounter)
         return {"batch": b, "layout": layout, "mode": "compiled" if compiled else "eager", **counts}
     finally:
@@ -216,7 +178,7 @@ def main() -> None:
     if any(procs) and not on_cuda:
         parser.error(
             "--setup-processes is timed in wall seconds on a GPU; on the CPU (process CPU time, which does "
-            "not see the workers) compare set-ups with benchmarks/bench_setup_pool.py"
+            "not see the workers) compare set-ups with benchmarks/speed/bench_setup_pool.py"
         )
     name = torch.cuda.get_device_name(device) if on_cuda else f"CPU, {args.threads} thread(s)"
     print(f"torch {torch.__version__}, {name}; time = {'wall' if on_cuda else 'process CPU'} seconds")
@@ -276,7 +238,7 @@ def main() -> None:
                 sec = min(secs)
                 _sync(device)
                 t0 = _clock(device)
-                sim.place_batch(mesh, _tile(pos, b), _tile(dirs, b), **strength)  # the host set-up alone
+                sim.place_batch(mesh, tile(pos, b), tile(dirs, b), **strength)  # the host set-up alone
                 setup = _clock(device) - t0
                 steps = [int(r.steps) for r in readings]
                 row = {

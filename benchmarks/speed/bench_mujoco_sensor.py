@@ -1,4 +1,4 @@
-"""Cost of the MuJoCo TactileSensor (issue 26 targets), measured against the EIP presses alone in the same run.
+"""Cost of the MuJoCo TactileSensor, measured against the EIP presses alone in the same run.
 
 Scene: the can of the pick-and-place held between the gripper's two pads (``tvrecon.robot.mujoco_scene``), the
 demo's pad (24x24x4 on n_grid 64) unless told otherwise. Rows:
@@ -10,7 +10,7 @@ demo's pad (24x24x4 on n_grid 64) unless told otherwise. Rows:
 - ``step, 2 pads in contact (cached)``: the next steps, where the contact has not moved (no simulation);
 - ``step, no contact``: the gripper open, ``mj_step`` + ``sense_pads``: rest readings (target < 5 ms).
 
-Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_mujoco_sensor.py [--repeats 3] [--resolution 24] [--n-grid 64]``.
+Run: ``OMP_NUM_THREADS=1 python -m benchmarks.speed.bench_mujoco_sensor [--repeats 3] [--resolution 24] [--n-grid 64]``.
 Times are this process's CPU time (``time.process_time``), the presses taking turns, so other jobs on a shared
 machine count less; the ratio (sensor step / presses alone) is the number to read.
 """
@@ -24,14 +24,14 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
-from tvrecon.data.shapes import make_shape  # noqa: E402
-from tvrecon.robot.mujoco_scene import MujocoScene  # noqa: E402
-from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
+from tvrecon.data.shapes import make_shape
+from tvrecon.robot.mujoco_scene import MujocoScene
+from tvrecon.robot.mujoco_sensor import TactileSensor
 from tvrecon.robot.pad import LazySimulator, sense_pads
-from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pad_config import PadConfig
 
 
 def _time(fn, repeats: int) -> float:

@@ -1,6 +1,6 @@
 """CPU cost of one generated touch of a data preset, measured through the dataset itself (not a test).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_preset_touch.py --preset cls_paper_cpu --touches 4 \
+    OMP_NUM_THREADS=1 PYTHONPATH=. python -m benchmarks.speed.bench_preset_touch --preset cls_paper_cpu --touches 4 \
         --classes bottle,fork,gear,mug,scissors [hydra overrides, e.g. sensor.resolution=[48,48]]
 
 Builds the preset's ``train`` dataset (no cache) with ``touches_per_object=--touches`` over ``--classes`` and times

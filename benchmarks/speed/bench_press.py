@@ -1,6 +1,6 @@
 """Benchmark of the EIP press protocol (not a test).
 
-    python benchmarks/bench_press.py [--touches 4] [--threads 1] [--resolution 64]
+    python -m benchmarks.speed.bench_press [--touches 4] [--threads 1] [--resolution 64]
 
 Measures one default press (64x64 tactile image, 128 cells across the domain; wall and CPU time, split into scene
 set-up and the solver loop) and the throughput of T touches pressed one at a time against the same T touches in one

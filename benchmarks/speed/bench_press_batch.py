@@ -1,6 +1,6 @@
 """Paper-preset touches one per solver call vs batched per object as data generation runs them (not a test).
 
-    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_batch.py [--objects 2]
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python -m benchmarks.speed.bench_press_batch [--objects 2]
         [--touches 10] [--first 0] [--compile]
 
 For each object (one class of ``available_classes()`` each, from ``--first``) ``--touches`` seeded cone-policy touches
@@ -14,19 +14,15 @@ the shared loop stops each touch at its own step). Only ratios from one process 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches, simulate_touches
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig
 
 
 def main() -> None:

@@ -1,10 +1,10 @@
 """Paper-preset touches pressed eager and with ``EIPSimulator(compile=True)``, in one process (not a test).
 
-    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python benchmarks/bench_press_compile.py [--touches 4] [--first 0]
-        [--contact grid|particle]
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 python -m benchmarks.speed.bench_press_compile [--touches 4]
+        [--first 0] [--contact grid|particle]
 
 Each touch (one class of ``available_classes()`` each, from ``--first``, seeded cone-policy touch, paper preset: 64x64x6
-pad, n_grid 128) is pressed by the eager solver and by the fused ``torch.compile`` kernels (issue 13 step 2),
+pad, n_grid 128) is pressed by the eager solver and by the fused ``torch.compile`` kernels,
 alternating which goes first, on one thread. The first compiled press (the compile) is timed apart. Prints per touch
 the CPU seconds of both, their ratio and how far the readings are apart (the compiled step equals the eager one to
 float32 round-off, not bit for bit); then the median and total ratio. Only ratios from one process mean something
@@ -16,19 +16,15 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.shapes.registry import available_classes, make_shape
+from tvrecon.data.touches import sample_touches
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig
 
 
 def main() -> None:

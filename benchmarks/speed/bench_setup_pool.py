@@ -1,6 +1,6 @@
 """A batch's touch set-up in threads against spawned processes (``EIPSimulator(setup_processes=N)``), wall time.
 
-    python benchmarks/bench_setup_pool.py --workers 2 --batch 20 --repeats 3
+    python -m benchmarks.speed.bench_setup_pool --workers 2 --batch 20 --repeats 3
 
 The paper scene of ``bench_gpu.py`` (the authors' 61x61x10 pad, n_grid 128, one object's paper sweep tiled to the
 batch), placed with ``EIPSimulator.place_batch`` on the CPU: ``--workers`` threads, then ``--workers`` processes (the
@@ -13,20 +13,13 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gpu import _tile, paper_scene  # noqa: E402
-from bench_setup_ab import same  # noqa: E402
-
-from tvrecon.sim import EIPSimulator  # noqa: E402
+from benchmarks._common import paper_scene, same, tile
+from tvrecon.sim import EIPSimulator
 
 
 def main() -> None:
@@ -38,7 +31,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     torch.set_num_threads(1)
     sensor, press, mesh, pos, dirs, strength = paper_scene("cpu")
-    pos, dirs = _tile(pos, args.batch), _tile(dirs, args.batch)
+    pos, dirs = tile(pos, args.batch), tile(dirs, args.batch)
     threads = EIPSimulator(sensor, press, setup_threads=args.workers)
     procs = EIPSimulator(sensor, press, setup_processes=args.workers)
     t0 = time.perf_counter()

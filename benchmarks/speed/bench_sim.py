@@ -1,4 +1,4 @@
-"""Speed benchmark of the MLS-MPM solver on the issue-2 press scene, against the straightforward reference port.
+"""Speed benchmark of the MLS-MPM solver on a press scene, against the straightforward reference port.
 
 Scene: pad of 48 x 48 x 12 particles at half-cell spacing, 128 cells across the unit domain, a sphere collider under
 the pad, the pad's back layer driven down by the hand (alpha = 0 there, 1 elsewhere: the "clamped" profile), 200
@@ -6,10 +6,10 @@ steps with the CFL time step. Runs ``tvrecon.sim.mpm.MLSMPM`` through its public
 ``tvrecon.sim.mpm.reference`` (dense 128^3 grid, index_add_, torch.linalg.svd) in the same process, prints
 particle-steps/s of both, their ratio, peak memory (max RSS) and the max abs difference of final positions.
 
-    .venv/bin/python benchmarks/bench_sim.py [--steps 200] [--repeats 2] [--threads N] [--skip-reference]
+    .venv/bin/python -m benchmarks.speed.bench_sim [--steps 200] [--repeats 2] [--threads N] [--skip-reference]
 
-``--compile`` instead compares the eager step with ``MLSMPM(compile=True)`` (the fused ``torch.compile`` kernels,
-issue 13 step 2) in this one process: compile time (the first steps) reported apart, then ``--repeats`` timed runs of
+``--compile`` instead compares the eager step with ``MLSMPM(compile=True)`` (the fused ``torch.compile`` kernels)
+in this one process: compile time (the first steps) reported apart, then ``--repeats`` timed runs of
 each, alternating which goes first, and the eager / compiled ratio of particle-steps per CPU-second (the median of
 the per-pair ratios: robust on a loaded machine), with the max |x, v, C, F| differences after ``--steps`` steps.
 """
@@ -18,39 +18,14 @@ from __future__ import annotations
 
 import argparse
 import resource
-import sys
 import time
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tvrecon.sim.bodies.colliders import SphereCollider  # noqa: E402
-from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
-from tvrecon.sim.mpm.reference import ReferenceMPM  # noqa: E402
-
-N_GRID = 128
-SPHERE_CENTER = (0.5, 0.5, 0.3)
-SPHERE_RADIUS = 0.1
-
-
-def press_scene(nx: int = 48, ny: int = 48, nz: int = 12, n_grid: int = N_GRID) -> tuple[torch.Tensor, ...]:
-    """Pad particles (P, 3) float32 one cell above the sphere top, alpha (P,), hand velocity (3,), particle volume."""
-    dx = 1.0 / n_grid
-    h = 0.5 * dx
-    ii = torch.arange(nx, dtype=torch.float64)
-    jj = torch.arange(ny, dtype=torch.float64)
-    kk = torch.arange(nz, dtype=torch.float64)
-    g = torch.stack(torch.meshgrid(ii, jj, kk, indexing="ij"), -1).reshape(-1, 3)
-    x = (g + 0.5) * h
-    x[:, 0] += 0.5 - nx * h / 2
-    x[:, 1] += 0.5 - ny * h / 2
-    x[:, 2] += SPHERE_CENTER[2] + SPHERE_RADIUS + dx  # bottom layer one cell above the sphere
-    alpha = torch.ones(x.shape[0])
-    alpha[g[:, 2] == nz - 1] = 0.0  # back layer follows the hand
-    hand = torch.tensor([0.0, 0.0, -0.125])  # ~4 cells in 200 CFL steps: 1 cell gap + 3 cells indentation
-    return x.float(), alpha, hand, h**3
+from benchmarks._common import N_GRID, SPHERE_CENTER, SPHERE_RADIUS, press_scene
+from tvrecon.sim.bodies.colliders import SphereCollider
+from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
+from tvrecon.sim.mpm.reference import ReferenceMPM
 
 
 def run_ours(steps: int, compile: bool = False, full: bool = False):

@@ -3,7 +3,7 @@
 call (``CompiledKernels``) and the fused C++ loops (``compiled.scatter.fused_p2g``, ``compiled.gather.fused_g2p``,
 ``compiled.contact.fused_contact``, ``compiled.polar.fused_polar``) timed by wall clock around the call.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_step_kernels.py [--batch 10] [--device cpu] [--keep-heap]
+    OMP_NUM_THREADS=1 python -m benchmarks.speed.bench_step_kernels [--batch 10] [--device cpu] [--keep-heap]
 
 Prints the call's wall and CPU time, its steps, and per kernel the ms per call, the calls and the share of the
 call (``--keep-heap``: :func:`tvrecon.utils.heap.keep_freed_memory` first, as ``generate`` does); ``fused_step`` is
@@ -16,26 +16,20 @@ from __future__ import annotations
 
 import argparse
 import collections
-import sys
 import time
 import warnings
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gpu import _tile, paper_scene  # noqa: E402
-
-import tvrecon.sim.mpm.compiled.backend as backend  # noqa: E402
-import tvrecon.sim.mpm.compiled.step as compiled_step  # noqa: E402
-import tvrecon.sim.mpm.free_flight as free_flight  # noqa: E402
-import tvrecon.sim.mpm.particle_contact as particle_contact  # noqa: E402
-import tvrecon.sim.mpm.solver as solver  # noqa: E402
-from tvrecon.sim import EIPSimulator  # noqa: E402
-from tvrecon.utils.heap import keep_freed_memory  # noqa: E402
+import tvrecon.sim.mpm.compiled.backend as backend
+import tvrecon.sim.mpm.compiled.step as compiled_step
+import tvrecon.sim.mpm.free_flight as free_flight
+import tvrecon.sim.mpm.particle_contact as particle_contact
+import tvrecon.sim.mpm.solver as solver
+from benchmarks._common import paper_scene, tile
+from tvrecon.sim import EIPSimulator
+from tvrecon.utils.heap import keep_freed_memory
 
 
 def main() -> None:
@@ -80,12 +74,12 @@ def main() -> None:
 
     sensor, press, mesh, pos, dirs, strength = paper_scene(args.device)
     sim = EIPSimulator(sensor, press, device=device, compile=True)
-    sim.press_batch(mesh, _tile(pos, args.batch), _tile(dirs, args.batch), **strength)  # compile, warm caches
+    sim.press_batch(mesh, tile(pos, args.batch), tile(dirs, args.batch), **strength)  # compile, warm caches
     seconds.clear()
     calls.clear()
     sync()
     t0, c0 = time.perf_counter(), time.process_time()
-    readings = sim.press_batch(mesh, _tile(pos, args.batch), _tile(dirs, args.batch), **strength)
+    readings = sim.press_batch(mesh, tile(pos, args.batch), tile(dirs, args.batch), **strength)
     sync()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     steps = max(int(r.steps) for r in readings)

@@ -1,16 +1,16 @@
-"""Taichi CPU against our solver (eager and compiled) on the bench_sim scene, in one process (issue 13's first target).
+"""Taichi CPU against our solver (eager and compiled) on the bench_sim scene, in one process.
 
-Scene: ``bench_sim.press_scene`` (48 x 48 x 12 pad at half-cell spacing, n_grid 128, the sphere under the pad, the
-back layer driven by the hand, CFL dt of ``MPMConfig()``: E 3, nu 0.25, rho 1, no friction, no damping), ``--steps``
-steps. The Taichi side is a straightforward MLS-MPM kernel of the mpm3d / mpm128 family written here: P2G with
-atomic adds into a dense ``n^3`` grid, fixed-corotated stress with ``R = U V^T`` from ``ti.svd``, a grid loop
-(velocity, sphere collider projection, collider force), G2P with the hand blend of paper eq. 8; ``ti.cpu``, one
-thread (``cpu_max_num_threads=1``). Three Taichi variants run: ``dense`` clears and updates all 128^3 nodes every
-step (the textbook kernel); ``box`` only the nodes of a fixed box the pad can reach (its initial bounds, the hand's
-travel and a margin: our solver also works on the particles' bounding block); ``box serial`` also serializes every
-loop (``ti.loop_config(serialize=True)``; presumably Taichi then demotes the P2G atomic adds to plain adds, not
-checked in the generated code): the fastest of the three on one thread, and the one to read the ratios against.
-Our solver runs through its public contract, eager and ``compile=True``, torch on one thread.
+Scene: ``benchmarks._common.press_scene`` (48 x 48 x 12 pad at half-cell spacing, n_grid 128, the sphere under the
+pad, the back layer driven by the hand, CFL dt of ``MPMConfig()``: E 3, nu 0.25, rho 1, no friction, no damping),
+``--steps`` steps. The Taichi side is a straightforward MLS-MPM kernel of the mpm3d / mpm128 family written here: P2G
+with atomic adds into a dense ``n^3`` grid, fixed-corotated stress with ``R = U V^T`` from ``ti.svd``, a grid loop
+(velocity, sphere collider projection, collider force), G2P with the hand blend of paper eq. 8; ``ti.cpu``, one thread
+(``cpu_max_num_threads=1``). Three Taichi variants run: ``dense`` clears and updates all 128^3 nodes every step (the
+textbook kernel); ``box`` only the nodes of a fixed box the pad can reach (its initial bounds, the hand's travel and a
+margin: our solver also works on the particles' bounding block); ``box serial`` also serializes every loop
+(``ti.loop_config(serialize=True)``; presumably Taichi then demotes the P2G atomic adds to plain adds, not checked in
+the generated code): the fastest of the three on one thread, and the one to read the ratios against. Our solver runs
+through its public contract, eager and ``compile=True``, torch on one thread.
 
 Compile time is excluded (a warm-up run of each: 3 steps, all ``--steps`` for the compiled solver, whose grid kernel
 recompiles once when the block strides first change); then ``--repeats`` rounds time all five, rotating which goes
@@ -19,31 +19,25 @@ the ratios ours / Taichi; the medians over rounds are the result. The physics ch
 last round with ``box serial``: max |x - x_taichi| over the particles (same order) in grid cells, the mean downward
 displacement of the pad, and the collider force of the last step.
 
-taichi is a benchmark-only extra, not a project dependency (benchmarks/requirements-taichi.txt, benchmarks/README.md):
+taichi is a benchmark-only extra, not a project dependency (benchmarks/speed/requirements-taichi.txt):
 
-    pip install --target /tmp/ti-site --no-deps -r benchmarks/requirements-taichi.txt
-    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 PYTHONPATH=.:/tmp/ti-site python benchmarks/bench_taichi.py \
-        [--steps 200] [--repeats 3]
+    pip install --target /tmp/ti-site --no-deps -r benchmarks/speed/requirements-taichi.txt
+    OMP_NUM_THREADS=1 TORCHINDUCTOR_COMPILE_THREADS=1 PYTHONPATH=.:/tmp/ti-site \
+        python -m benchmarks.speed.bench_taichi [--steps 200] [--repeats 3]
 """
 
 import argparse  # no `from __future__ import annotations`: taichi reads the kernel annotations as objects
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import taichi as ti
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_sim import N_GRID, SPHERE_CENTER, SPHERE_RADIUS, press_scene  # noqa: E402
-
-from tvrecon.sim.bodies.colliders import SphereCollider  # noqa: E402
-from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
-from tvrecon.sim.mpm.materials import lame_parameters  # noqa: E402
+from benchmarks._common import N_GRID, SPHERE_CENTER, SPHERE_RADIUS, press_scene
+from tvrecon.sim.bodies.colliders import SphereCollider
+from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
+from tvrecon.sim.mpm.materials import lame_parameters
 
 
 @ti.data_oriented
