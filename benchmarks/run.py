@@ -1,14 +1,15 @@
 """The speed suite at a small size, written to ONE JSON file keyed by machine, torch version and commit.
 
-    python -m benchmarks.run                       # what ``make bench`` runs; writes results/bench/suite/<key>.json
+    python -m benchmarks.run                       # what ``make bench`` runs: results/bench/suite/<key>/metrics.json
     python -m benchmarks.run --only bench_sim --threads 2 --out /tmp/bench
 
 Each entry of ``SUITE`` is a script of ``benchmarks/speed/`` run as its own process (``python -m
 benchmarks.speed.<name> <args>``, from the repository root, ``OMP_NUM_THREADS`` set to ``--threads``), small enough
 that the suite takes a few CPU-minutes. The file holds, per script: the command, its exit status, wall seconds, the
 lines it printed and, for scripts that write JSON (``--out``), that JSON. The key (``machine``, ``torch``, ``commit``)
-names the file, so runs on other machines or commits sit beside each other; ratios inside one script's run are the
-figures to compare (absolute seconds drift on a shared machine).
+names the run folder, so runs on other machines or commits sit beside each other; ratios inside one script's run are
+the figures to compare (absolute seconds drift on a shared machine). Beside ``metrics.json`` the folder gets the
+``manifest.json`` every results run has (command, data_preset, seed, commit, machine, wall_s, date).
 """
 
 from __future__ import annotations
@@ -75,7 +76,7 @@ def commit() -> str | None:
 
 
 def key(info: dict) -> str:
-    """A file name from the machine, torch version and commit: ``[A-Za-z0-9._-]`` only."""
+    """A folder name from the machine, torch version and commit: ``[A-Za-z0-9._-]`` only."""
     raw = f"{info['machine']}_torch-{info['torch']}_{info['commit'] or 'nocommit'}"
     return re.sub(r"[^A-Za-z0-9._-]+", "-", raw).strip("-")
 
@@ -109,7 +110,12 @@ def run_script(name: str, args: list[str], threads: int, tmp: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "suite", help="folder of the JSON")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=ROOT / "results" / "bench" / "suite",
+        help="suite folder; the run goes to <out>/<key>/",
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch / OpenMP threads of every script")
     parser.add_argument("--only", nargs="*", default=None, help="run these scripts of the suite only")
     args = parser.parse_args(argv)
@@ -130,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
     }
     runs = {}
+    t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             print(f"{name} ...", flush=True)
@@ -137,10 +144,20 @@ def main(argv: list[str] | None = None) -> int:
             r = runs[name]
             print("\n".join(f"  {line}" for line in r["stdout"][-6:]), flush=True)
             print(f"  -> exit {r['returncode']}, {r['wall_s']} s", flush=True)
-    path = args.out / f"{key(info)}.json"
-    args.out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps({**info, "runs": runs}, indent=1) + "\n")
-    print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+    folder = args.out / key(info)
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest = {
+        "command": " ".join(["python -m benchmarks.run", *(argv if argv is not None else sys.argv[1:])]),
+        "data_preset": None,
+        "seed": None,
+        "commit": info["commit"],
+        "machine": info["machine"],
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "date": info["date"][:10],
+    }
+    atomic_write_text(folder / "metrics.json", json.dumps({**info, "runs": runs}, indent=1) + "\n")
+    atomic_write_text(folder / "manifest.json", json.dumps(manifest, indent=1) + "\n")
+    print(f"wrote {folder.relative_to(ROOT) if folder.is_relative_to(ROOT) else folder}/metrics.json")
     return 0 if all(r["returncode"] == 0 for r in runs.values()) else 1
 
 

@@ -16,7 +16,7 @@ together::
 
     python -m benchmarks.physics.bench_hertz_static --combine DIR0 DIR1 DIR2 DIR3 --out DIR  # all in one
 
-``docs/physics.md`` (section "Why 0.1 c_p misses Hertz, and the reading at rest") has the numbers.
+``docs/validation/physics.md`` ("Hertz contact") explains the reading at rest.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ convergence, momentum and energy. Prints a table and writes plots to ``--out``.
 
 ``small`` is a scaled-down version of every check; ``full`` uses the sizes of the issue's targets (a 128-cell pad
 12 cells thick for Hertz, n_grid 128 vs 256 for the images, 64 / 128 / 256 for the stop depth). The scenes and the
-theory live in :mod:`physics_checks`; ``docs/physics.md`` explains the numbers.
+theory live in :mod:`physics_checks`; ``docs/validation/physics.md`` explains the numbers.
 """
 
 from __future__ import annotations
@@ -191,7 +191,7 @@ def bench_release(size: dict) -> dict:
     out = {}
     t0 = _cpu()
     for prof in ("clamped", "linear"):
-        # the grid contact, as measured in docs/physics.md section 3 (the press's default then)
+        # the grid contact (docs/validation/physics.md, "Release")
         press = PressConfig(n_grid=n, depth=2.0, release_steps=300, contact="grid", threshold_grid=None)
         sim = EIPSimulator(SensorConfig(alpha_profile=prof, **pad), press)
         r = sim.press(mesh, [0.0, 0.0, 0.3], [0.0, 0.0, -1.0])

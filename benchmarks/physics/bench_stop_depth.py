@@ -28,8 +28,7 @@ or ``sphere``) the same way, from the top at their ``touch_position``, and ends 
         --rule force --force 0.0098                                                              # a slower press
     OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_stop_depth --grids 64 128 256 --shapes sphere ball egg
 
-``docs/physics.md`` ("Why n_grid 64 stops 18% deeper", "A stop at one force", "The same stops at 0.03 c_p") has the
-numbers.
+``docs/notes/stop-depth.md`` explains what the stops across grids show.
 """
 
 from __future__ import annotations

@@ -31,17 +31,27 @@ def test_unknown_script_and_bad_threads_exit_2(tmp_path, capsys):
 
 
 def test_run_writes_one_json(tmp_path, monkeypatch):
-    """A two-step solver run: one file named by the key, holding the key's fields and the script's output."""
+    """A two-step solver run: one folder named by the key, its metrics (the key's fields, the script's output) and
+    its manifest."""
     monkeypatch.setitem(run.SUITE, "bench_sim", ["--steps", "2", "--repeats", "1", "--skip-reference"])
     assert run.main(["--only", "bench_sim", "--out", str(tmp_path)]) == 0
-    (path,) = tmp_path.glob("*.json")
-    data = json.loads(path.read_text())
-    assert path.stem == run.key(data)
+    (folder,) = tmp_path.iterdir()
+    assert sorted(p.name for p in folder.iterdir()) == ["manifest.json", "metrics.json"]
+    data = json.loads((folder / "metrics.json").read_text())
+    assert folder.name == run.key(data)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert set(manifest) == {"command", "data_preset", "seed", "commit", "machine", "wall_s", "date"}
+    assert manifest["command"] == f"python -m benchmarks.run --only bench_sim --out {tmp_path}"
+    assert manifest["machine"] == data["machine"] and manifest["wall_s"] >= r_wall(data)
     assert data["torch"] == torch.__version__ and data["machine"] and data["threads"] == 1
     r = data["runs"]["bench_sim"]
     assert r["returncode"] == 0 and r["wall_s"] > 0
     assert r["command"].startswith("python -m benchmarks.speed.bench_sim --steps 2")
     assert any("particle-steps/s" in line for line in r["stdout"])
+
+
+def r_wall(data: dict) -> float:
+    return sum(r["wall_s"] for r in data["runs"].values()) - 1.0  # the suite's wall time holds every script's
 
 
 def test_missing_script_is_a_clear_error(tmp_path):
