@@ -24,11 +24,11 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from tvrecon.data.presets import compose_preset
-from tvrecon.data.shapes.registry import available_classes, make_shape
-from tvrecon.data.touches import sample_touches
-from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.data.presets import compose_preset  # noqa: E402
+from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
+from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 
 def main() -> None:

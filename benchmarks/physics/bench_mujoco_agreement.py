@@ -23,19 +23,19 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import mujoco
-import numpy as np
-import pybullet as p
-import torch
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import pybullet as p  # noqa: E402
+import torch  # noqa: E402
 
-from tvrecon.data.shapes import make_shape
-from tvrecon.robot.finger import TactileFinger
-from tvrecon.robot.mujoco_scene import FINGER_HALF, _fmt
-from tvrecon.robot.mujoco_sensor import TactileSensor
+from tvrecon.data.shapes import make_shape  # noqa: E402
+from tvrecon.robot.finger import TactileFinger  # noqa: E402
+from tvrecon.robot.mujoco_scene import FINGER_HALF, _fmt  # noqa: E402
+from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
 from tvrecon.robot.pad import LazySimulator
-from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 from tvrecon.robot.pad_reading import FingerReading
-from tvrecon.robot.scene import collision_shape_for_mesh, prepare_object_mesh
+from tvrecon.robot.scene import collision_shape_for_mesh, prepare_object_mesh  # noqa: E402
 
 
 def corr(a: np.ndarray, b: np.ndarray) -> float:

@@ -34,8 +34,8 @@ from benchmarks._common import ROOT
 
 os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
-from tvrecon.data.presets import compose_preset
-from tvrecon.losses.chamfer import chamfer_terms
+from tvrecon.data.presets import compose_preset  # noqa: E402
+from tvrecon.losses.chamfer import chamfer_terms  # noqa: E402
 
 BANDS = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 9.0)]
 TESTS = {  # name: (patch_min_push, patch_min_push_fraction)

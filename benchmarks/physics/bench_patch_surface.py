@@ -22,11 +22,11 @@ import numpy as np
 import torch
 import trimesh
 
-from tvrecon.data.shapes.registry import available_classes, make_shape
-from tvrecon.data.touches import sample_touches
+from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
+from tvrecon.data.touches import sample_touches  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.press.reading import reading_patch
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.press.reading import reading_patch  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 CONTACTS = {"grid (before)": {"contact": "grid", "threshold_grid": None}, "particle (default)": {}}
 

@@ -26,12 +26,12 @@ from collections.abc import Callable
 
 import torch
 
-import tvrecon.sim.mpm.compiled.gather as gather
-import tvrecon.sim.mpm.compiled.scatter as scatter
-import tvrecon.sim.mpm.compiled.step as compiled_step
+import tvrecon.sim.mpm.compiled.gather as gather  # noqa: E402
+import tvrecon.sim.mpm.compiled.scatter as scatter  # noqa: E402
+import tvrecon.sim.mpm.compiled.step as compiled_step  # noqa: E402
 from benchmarks._common import ROOT, SCENES, tile
-from tvrecon.sim import EIPSimulator
-from tvrecon.sim.mpm.compiled.cpp_loop import ptr
+from tvrecon.sim import EIPSimulator  # noqa: E402
+from tvrecon.sim.mpm.compiled.cpp_loop import ptr  # noqa: E402
 
 
 def old_source(rev: str, module: str) -> str:

@@ -26,9 +26,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from benchmarks._common import paper_scene
-from tvrecon.sim import EIPSimulator
-from tvrecon.sim.bodies import mesh_distance
-from tvrecon.sim.bodies.voxelize import surface_samples
+from tvrecon.sim import EIPSimulator  # noqa: E402
+from tvrecon.sim.bodies import mesh_distance  # noqa: E402
+from tvrecon.sim.bodies.voxelize import surface_samples  # noqa: E402
 
 
 def plain_distance(nodes, lo_i, dims, surface, dx, cap) -> np.ndarray:

@@ -38,12 +38,12 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from benchmarks._common import ROOT
-from tvrecon.data.presets import compose_preset
-from tvrecon.data.shapes.registry import available_classes, make_shape
-from tvrecon.data.touches import sample_touches, simulate_touches
-from tvrecon.sim.mpm.state import CONTACT_MODES
-from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.data.presets import compose_preset  # noqa: E402
+from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
+from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
+from tvrecon.sim.mpm.state import CONTACT_MODES  # noqa: E402
+from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 
 def import_old(rev: str, where: Path):

@@ -27,10 +27,10 @@ import trimesh
 
 from benchmarks._common import same
 from benchmarks.probes.bench_press_ab import import_old
-from tvrecon.data.shapes.registry import available_classes, make_shape
-from tvrecon.data.touches import sample_touches
-from tvrecon.sim.press import EIPSimulator, PressConfig, placement
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
+from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.sim.press import EIPSimulator, PressConfig, placement  # noqa: E402
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 
 def apart(a, b, dx: float) -> dict[str, float]:

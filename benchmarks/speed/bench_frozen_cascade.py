@@ -23,8 +23,8 @@ import argparse
 import torch
 
 from benchmarks.speed.bench_train_step import build_module, synthetic_batch, time_steps, train_step
-from tvrecon.models.lit_recon import ReconstructionModule
-from tvrecon.models.warm_start import FreezeParameters
+from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
+from tvrecon.models.warm_start import FreezeParameters  # noqa: E402
 
 FROZEN = ("net.visual", "net.deformer.stages")
 

@@ -50,9 +50,9 @@ import torch
 
 from benchmarks._common import SCENES, tile
 from tvrecon.sim import EIPSimulator
-from tvrecon.sim.mpm.solver import MLSMPM
-from tvrecon.sim.press.loop import PressLoop
-from tvrecon.utils.op_counter import OpCounter, ProfiledCounter, kernel_profile, per_step
+from tvrecon.sim.mpm.solver import MLSMPM  # noqa: E402
+from tvrecon.sim.press.loop import PressLoop  # noqa: E402
+from tvrecon.utils.op_counter import OpCounter, ProfiledCounter, kernel_profile, per_step  # noqa: E402
 
 
 def _sync(device: torch.device) -> None:

@@ -24,14 +24,14 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import numpy as np
-import torch
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
 
-from tvrecon.data.shapes import make_shape
-from tvrecon.robot.mujoco_scene import MujocoScene
-from tvrecon.robot.mujoco_sensor import TactileSensor
+from tvrecon.data.shapes import make_shape  # noqa: E402
+from tvrecon.robot.mujoco_scene import MujocoScene  # noqa: E402
+from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
 from tvrecon.robot.pad import LazySimulator, sense_pads
-from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 
 
 def _time(fn, repeats: int) -> float:

@@ -19,10 +19,10 @@ import warnings
 
 import torch
 
-from tvrecon.data.shapes.registry import available_classes, make_shape
-from tvrecon.data.touches import sample_touches, simulate_touches
+from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
+from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
 
 
 def main() -> None:

@@ -19,7 +19,7 @@ import warnings
 import torch
 
 from benchmarks._common import paper_scene, same, tile
-from tvrecon.sim import EIPSimulator
+from tvrecon.sim import EIPSimulator  # noqa: E402
 
 
 def main() -> None:

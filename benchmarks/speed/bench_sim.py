@@ -23,9 +23,9 @@ import time
 import torch
 
 from benchmarks._common import N_GRID, SPHERE_CENTER, SPHERE_RADIUS, press_scene
-from tvrecon.sim.bodies.colliders import SphereCollider
-from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
-from tvrecon.sim.mpm.reference import ReferenceMPM
+from tvrecon.sim.bodies.colliders import SphereCollider  # noqa: E402
+from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
+from tvrecon.sim.mpm.reference import ReferenceMPM  # noqa: E402
 
 
 def run_ours(steps: int, compile: bool = False, full: bool = False):

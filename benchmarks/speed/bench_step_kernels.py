@@ -22,14 +22,14 @@ from collections.abc import Callable
 
 import torch
 
-import tvrecon.sim.mpm.compiled.backend as backend
-import tvrecon.sim.mpm.compiled.step as compiled_step
-import tvrecon.sim.mpm.free_flight as free_flight
-import tvrecon.sim.mpm.particle_contact as particle_contact
-import tvrecon.sim.mpm.solver as solver
+import tvrecon.sim.mpm.compiled.backend as backend  # noqa: E402
+import tvrecon.sim.mpm.compiled.step as compiled_step  # noqa: E402
+import tvrecon.sim.mpm.free_flight as free_flight  # noqa: E402
+import tvrecon.sim.mpm.particle_contact as particle_contact  # noqa: E402
+import tvrecon.sim.mpm.solver as solver  # noqa: E402
 from benchmarks._common import paper_scene, tile
-from tvrecon.sim import EIPSimulator
-from tvrecon.utils.heap import keep_freed_memory
+from tvrecon.sim import EIPSimulator  # noqa: E402
+from tvrecon.utils.heap import keep_freed_memory  # noqa: E402
 
 
 def main() -> None:

@@ -35,9 +35,9 @@ import taichi as ti
 import torch
 
 from benchmarks._common import N_GRID, SPHERE_CENTER, SPHERE_RADIUS, press_scene
-from tvrecon.sim.bodies.colliders import SphereCollider
-from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState
-from tvrecon.sim.mpm.materials import lame_parameters
+from tvrecon.sim.bodies.colliders import SphereCollider  # noqa: E402
+from tvrecon.sim.mpm import MLSMPM, MPMConfig, ParticleState  # noqa: E402
+from tvrecon.sim.mpm.materials import lame_parameters  # noqa: E402
 
 
 @ti.data_oriented
