@@ -5,8 +5,8 @@ The hand stops at a few depths and holds while the grid velocities are damped (d
 test reads them. The exponents are log-log fits over the hold depths; the ratios are taken at the hold ``d_cmp``.
 
     OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size small --out outputs/bench_hertz_static
-    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size issue --offsets 0.25  # ~4 CPU-min
-    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size issue --contact grid \\
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size large --offsets 0.25  # ~4 CPU-min
+    OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size large --contact grid \\
         --offsets 0.25 --out DIR
     OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_hertz_static --size tiny --out /tmp/bhs      # smoke run
 
@@ -53,7 +53,7 @@ SIZES = {
         "holds": (0.75, 1.25, 2.0, 3.0),
         "d_cmp": 2.0,
     },
-    "issue": {  # the issue's R and h at n_grid 256; 48 cells wide (the thin-layer a is 16 cells at d = 4)
+    "large": {  # R = 32 cells and a 12-cell layer at n_grid 256; 48 cells wide (the thin-layer a is 16 cells at d = 4)
         "scene": {"n_grid": 256, "width": 48.0, "thick": 12.0, "R": 32.0},
         "holds": (0.75, 1.5, 2.67, 4.0),
         "d_cmp": 2.67,

@@ -4,7 +4,7 @@ convergence, momentum and energy. Prints a table and writes plots to ``--out``.
     OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_physics --size small --out outputs/bench_physics   # ~3 CPU-min
     OMP_NUM_THREADS=1 python -m benchmarks.physics.bench_physics --size full --out outputs/bench_physics  # idle CPU
 
-``small`` is a scaled-down version of every check; ``full`` uses the sizes of the issue's targets (a 128-cell pad
+``small`` is a scaled-down version of every check; ``full`` uses the sizes of the validation targets (a 128-cell pad
 12 cells thick for Hertz, n_grid 128 vs 256 for the images, 64 / 128 / 256 for the stop depth). The scenes and the
 theory live in :mod:`physics_checks`; ``docs/validation/physics.md`` explains the numbers.
 """
