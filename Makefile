@@ -28,7 +28,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/bench_sim.py
+	$(BIN)/python -m benchmarks.run
 
 clean:
 	rm -rf outputs multirun lightning_logs .pytest_cache

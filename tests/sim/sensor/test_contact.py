@@ -90,7 +90,7 @@ def test_default_particle_contact_lays_the_patch_on_the_surface(sphere_touches):
     """The default press's patches lie on the surface to a small fraction of a cell; the grid press of before
     (``contact="grid", threshold_grid=None``: its nodes act up to 1.5 cells before the particles arrive) holds them
     off it. Measured here: mean |distance| 0.023-0.025 cells (particle) against 0.21-0.22 (grid)
-    (benchmarks/bench_patch_surface.py: 0.059 against 0.200 over 12 library touches)."""
+    (benchmarks/physics/bench_patch_surface.py: 0.059 against 0.200 over 12 library touches)."""
     mesh, sensor, press, readings = sphere_touches
     grid_press = PressConfig(n_grid=N_GRID, contact="grid", threshold_grid=None)
     grid = EIPSimulator(sensor=sensor, press=grid_press).press_batch(

@@ -12,7 +12,7 @@ from tvrecon.sim.validation.physics_checks import slab_press
 from tvrecon.sim.validation.quasi_static import hand_schedule, hold_means, relaxation_steps
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
-# the tiny scene of benchmarks/bench_hertz_static.py: sphere R = 6 cells, pad 3 cells thick, n_grid 32
+# the tiny scene of benchmarks/physics/bench_hertz_static.py: sphere R = 6 cells, pad 3 cells thick, n_grid 32
 SCENE = {"n_grid": 32, "width": 12.0, "thick": 3.0, "R": 6.0}
 HOLDS = (0.5, 1.0, 1.5)
 

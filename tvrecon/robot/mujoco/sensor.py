@@ -112,8 +112,8 @@ class TactileSensor(PadSensor):
         name: label used in logs.
         use_penetration: also take MuJoCo's penetration as a lower bound of the press depth. Off by default: MuJoCo's
             soft contacts overlap by what ``solref`` / ``solimp`` allow (1.1-1.3 mm under a 20 N squeeze with the
-            gripper's ``solref="0.01 1"``, ``benchmarks/bench_mujoco_agreement.py``), a constraint setting rather
-            than the gel's give, so the depth is the pad's elastic give under MuJoCo's contact force
+            gripper's ``solref="0.01 1"``, ``benchmarks/physics/bench_mujoco_agreement.py``), a constraint setting
+            rather than the gel's give, so the depth is the pad's elastic give under MuJoCo's contact force
             (``force / pad.stiffness``), as with pybullet's nearly rigid contacts.
 
     Meshes given to :meth:`attach_object` are in the *geom's* frame: MuJoCo recentres a mesh asset on its centre of

@@ -4,8 +4,8 @@ fastest.
 On the CPU ``torch.matmul``'s batched kernel is the fast one. On CUDA it calls cuBLAS batched GEMM, which splits a
 batch over 65,535 matrices into one launch per 65,535 (37 launches for the 2.4 M particles of 64 paper touches), each
 a 32 x 32 tile for a 3 x 3 product: on an H100 the three per-particle products of a step took 42% of a batch-64 press
-step's GPU time (``benchmarks/bench_gpu.py --profile 64``, ``benchmarks/README.md``). There the product is written as
-a broadcast multiply summed over the inner axis: one elementwise kernel and one reduction, memory-bound.
+step's GPU time (``benchmarks/speed/bench_gpu.py --profile 64``, ``benchmarks/README.md``). There the product is
+written as a broadcast multiply summed over the inner axis: one elementwise kernel and one reduction, memory-bound.
 """
 
 from __future__ import annotations

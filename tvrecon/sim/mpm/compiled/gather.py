@@ -7,7 +7,7 @@ It is :func:`tvrecon.sim.mpm.compiled.kernels.g2p_update`'s arithmetic with the 
 equal to the inductor kernel to float32 round-off. Inductor's loop of that function gathers with scalar indirect loads
 and recomputes the weights per channel. The particles go in tiles of 256: the node sums one particle at a time, then the
 particle update (C, v, x, F: a third of the loop's time when it was done per particle) 8 particles at a time on the
-channel-first arrays (a paper step's gather 1.8x faster, ``benchmarks/bench_cpp_loops.py``).
+channel-first arrays (a paper step's gather 1.8x faster, ``benchmarks/probes/bench_cpp_loops.py``).
 
 Built once per process with inductor's own C++ toolchain and cache, like :mod:`.scatter`; used only for float32 CPU
 tensors on one torch thread (the loop is serial; with more threads inductor's loop runs in parallel); anything else,

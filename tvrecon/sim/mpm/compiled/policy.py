@@ -4,7 +4,7 @@ process from the work it will do, and the persistent compile cache that makes a 
 A compile costs the process a fixed time before its first fused step, and each touch after it is cheaper than an
 eager one; so it pays back only over enough touches in one process. Measured on the ``small`` preset's touches (a
 31 x 31 x 5 pad on the 64 grid; one thread, the other core busy with a training run;
-``benchmarks/bench_compile_auto.py``):
+``benchmarks/speed/bench_compile_auto.py``):
 eager 0.574 CPU-s per touch, compiled 0.324; the compile 124 CPU-s with an empty compile cache and 19 with a warm one;
 no recompiles after the first objects. The break-even is then 495 touches cold and 76 warm; the thresholds below
 round those up. Larger pads save more per touch, so they pay back sooner: the thresholds count touches of that pad,

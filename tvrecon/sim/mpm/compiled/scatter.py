@@ -9,7 +9,7 @@ floats each) without a buffer, with the B-spline weights computed from ``fx`` (a
 of P was ~60% of this loop's time). The sums are the same terms added in another order (per node, particle by
 particle) and fused into FMAs, so the grid equals the row path to float32 round-off. The particles go in tiles of
 256: each one's stress and affine momentum 8 particles at a time, then its stencil onto the grid (a paper step's
-scatter 1.6x faster than one particle at a time, ``benchmarks/bench_cpp_loops.py``).
+scatter 1.6x faster than one particle at a time, ``benchmarks/probes/bench_cpp_loops.py``).
 
 Built once per process with inductor's own C++ toolchain and cache (``torch._inductor.codecache.CppCodeCache``, the
 compiler the compiled path needs anyway). Used only for float32 CPU tensors on one torch thread (the loop is serial:
