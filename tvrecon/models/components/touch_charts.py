@@ -127,6 +127,9 @@ class TouchChartUNet(nn.Module):
         self.up = nn.ModuleList([nn.ConvTranspose2d(b, a, 2, stride=2) for a, b in zip(widths[:-1], widths[1:])])
         self.merge = nn.ModuleList([_DoubleConv(2 * a, a) for a in widths[:-1]])
         self.out = nn.Conv2d(widths[0], 1, 1)
+        with torch.no_grad():  # heights start near 0 (the pad at rest), not at the O(1) of a fresh conv in world units
+            self.out.weight.mul_(0.01)
+            self.out.bias.zero_()
 
     def forward(self, x: Tensor) -> Tensor:
         """Args: x (N, C, h, w) float. Returns (N, h, w) float heights (the output layer's unit)."""
