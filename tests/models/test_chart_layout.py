@@ -54,6 +54,10 @@ def test_adjacency_rows_and_touch_links() -> None:
     assert A[:V, V:].abs().sum() == 0  # samples are independent
     none = chart_adjacency(t, None, 1)
     assert none.shape == (Vv, Vv)
+    i, j = t.seams[0].tolist()
+    assert none.to_dense()[i, j] > 0
+    apart = chart_adjacency(t, None, 1, seams=False).to_dense()  # the authors' vision-only graph
+    assert apart[i, j] == 0 and torch.allclose(apart.sum(1), torch.ones(Vv))
 
 
 def test_bad_arguments() -> None:

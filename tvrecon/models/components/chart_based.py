@@ -22,7 +22,9 @@ that touch geometry reads, and it trains no image network per touch.
 
 Modes, one model class as in the authors' paper (they train one model per input): ``"chart_based"`` (view and touches;
 with no touch the vision charts alone, Table 3's Visual cell of a model that reads touches), ``"chart_based_visual"``
-(never reads touches) and ``"chart_based_tactile"`` (no image: the vertices read positions and flags only).
+(never reads touches; as in the authors' code its charts are not joined along their seams, see
+:func:`~tvrecon.models.components.charts.chart_adjacency`) and ``"chart_based_tactile"`` (no image: the vertices read
+positions and flags only).
 
 Output (:meth:`ChartBasedReconstructor.forward`): the other reconstructors' dict, one entry per pass. Vertices are the
 vision charts' and then T touch charts' (``T`` the batch's touch slots, 0 without touches); a touch chart not in use
@@ -231,7 +233,7 @@ class ChartBasedReconstructor(nn.Module):
             verts0 = vision
             flags = vision.new_full((B, Vv), VISION_FLAG)
         movable = torch.arange(Vv + T * Vt, device=image.device) < Vv  # (V,)
-        adjacency = chart_adjacency(template, used, B)
+        adjacency = chart_adjacency(template, used, B, seams=self.uses_touches)  # the authors' graphs (see there)
         passes = self.chart_deformer(verts0, flags, movable, adjacency, features or None, K, image_size)
         if used is not None:  # collapse the touch charts not in use onto the first vision vertex: no area
             hold = used.repeat_interleave(Vt, 1)[..., None]  # (B, T Vt, 1)

@@ -193,17 +193,19 @@ class ChartTemplate(nn.Module):
         return torch.cat([self.faces, touch])
 
 
-def chart_adjacency(template: ChartTemplate, touch_used: Tensor | None, batch_size: int) -> Tensor:
+def chart_adjacency(template: ChartTemplate, touch_used: Tensor | None, batch_size: int, seams: bool = True) -> Tensor:
     """Row-normalised graph of the vision charts and T touch charts, block-diagonal over a batch.
 
-    Edges: self loops; the charts' own edges; every seam pair; each touch chart's grid edges; and, for the touches in
-    use, the touch chart's central vertex with every seam vertex (the authors' ``adj_fuse_touch``). A touch not in use
-    keeps its chart's own edges only, so nothing reaches the vision charts from it.
+    Edges: self loops; the charts' own edges; every seam pair (with ``seams``); each touch chart's grid edges; and, for
+    the touches in use, the touch chart's central vertex with every seam vertex (the authors' ``adj_fuse_touch``). A
+    touch not in use keeps its chart's own edges only, so nothing reaches the vision charts from it.
 
     Args:
         template: the chart layout.
         touch_used: (B, T) bool, the touches whose chart joins the surface; None for no touch chart.
         batch_size: B.
+        seams: join the vision charts along their seams. The authors' code adds the seam edges together with the touch
+            charts, so their vision-only model has none: its charts meet only through the image.
 
     Returns:
         (B V, B V) float32 sparse CSR, V = Vv + T Vt; row v holds ``1 / |N(v)|`` at each neighbour (itself included).
@@ -216,7 +218,7 @@ def chart_adjacency(template: ChartTemplate, touch_used: Tensor | None, batch_si
         if touch_used.shape[0] != batch_size:
             raise ValueError(f"touch_used must have shape ({batch_size}, T), got {tuple(touch_used.shape)}")
     V = Vv + T * Vt
-    pairs = [template.edges, template.seams]
+    pairs = [template.edges, template.seams] if seams else [template.edges]
     if T:
         offsets = Vv + Vt * torch.arange(T, device=device)
         pairs.append((template.touch_edges[None] + offsets[:, None, None]).reshape(-1, 2))
