@@ -5,8 +5,8 @@ as a closed sphere-like layout: an icosahedron is subdivided ``base_subdivisions
 the unit sphere; 80 triangles for 1), each of its triangles becomes one chart, a triangular grid of
 ``chart_subdivisions`` segments per side pushed onto the sphere (21 vertices and 25 faces for 5), and the sphere is
 scaled to the ellipsoid of :class:`~tvrecon.models.components.ellipsoid.EllipsoidTemplate` in front of the camera. The
-authors start from 96 charts of 19 vertices and 24 faces made by hand; 80 x 21 = 1,680 vertices is the same size, built
-here in code so that it can be resized.
+authors start from 96 charts of 19 vertices and 24 faces read from a mesh file (``vision_sheets.obj``); 80 x 21 = 1,680
+vertices is the same size, built here in code so that it can be resized.
 
 Charts touch along their borders: the border vertices of neighbouring charts sit at the same position (*seam*
 vertices) and, as in the authors' graph, every pair of vertices at one position is joined by an edge, so the charts
