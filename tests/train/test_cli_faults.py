@@ -85,7 +85,7 @@ def _one_error_line(err: str, prog: str) -> str:
 
 @pytest.mark.parametrize(
     ("override", "listed"),
-    [("experiment=bogus", "Available options in 'experiment': classify, "), ("data=bogus", "cls_tiny, ")],
+    [("experiment=bogus", "Available options in 'experiment': chart_based, "), ("data=bogus", "cls_tiny, ")],
 )
 def test_unknown_config_group_is_one_line_listing_the_options(
     override: str, listed: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]

@@ -59,8 +59,23 @@ def test_experiment_composes_and_instantiates(experiment: str, tmp_path: Path) -
         "touch_geometry_view_pass": "touch_geometry",
         "touch_residual": "touch_geometry",
         "touch_cascade": "touch_geometry",
+        "chart_based": "chart_based",
+        "chart_based_predicted": "chart_based",
+        "chart_based_visual": "chart_based_visual",
+        "chart_based_tactile": "chart_based_tactile",
     }.get(experiment, "fusion")
     assert net.mode == expected_mode
+    if expected_mode.startswith("chart_based"):  # the Chart-based method (Smith et al. 2020): its own graph and loss
+        assert net.reads_patches and type(model.criterion).__name__ == "ChartLoss"
+        assert net.touch_chart == ("predicted" if experiment == "chart_based_predicted" else "patch")
+        assert (net.touch_predictor is not None) == (experiment == "chart_based_predicted")
+        assert (net.visual is None) == (not net.chart_deformer.use_image) == (experiment == "chart_based_tactile")
+        assert model.hparams.min_touches == (1 if experiment == "chart_based_tactile" else 0)
+        assert model.hparams.lr_scales is None and model.modality == {
+            "chart_based_visual": "visual",
+            "chart_based_tactile": "tactile",
+        }.get(experiment, "tactile_visual")
+        return
     if expected_mode == "visual_only":
         assert net.fusion is None and net.tactile is None
         return

@@ -44,6 +44,9 @@ MODALITY = {
     "visual_only": "visual",
     "tactile_only": "tactile",
     "touch_geometry": "tactile_visual",  # tvrecon.models.components.touch_geometry (reads the contact patches)
+    "chart_based": "tactile_visual",  # tvrecon.models.components.chart_based (Smith et al. 2020)
+    "chart_based_visual": "visual",
+    "chart_based_tactile": "tactile",
 }
 
 
@@ -84,6 +87,9 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
             ``touch`` (the touch-geometry model); 0 disables it.
         visual_loss_weight: weight of the view-only answer's own loss (the Pixel2Mesh losses on ``out["visual"]``),
             for networks that return one (the touch-residual model); 0 disables it.
+        criterion: the training loss, called ``criterion(out, points, normals)`` -> dict of terms with ``loss``;
+            None = the Pixel2Mesh losses above (``loss_weights`` ...). The Chart-based method brings its own
+            (:class:`tvrecon.losses.charts.ChartLoss`).
     """
 
     def __init__(
@@ -113,11 +119,12 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         refine_steps: int = 40,
         patch_loss_weight: float = 0.0,
         visual_loss_weight: float = 1.0,
+        criterion: nn.Module | None = None,
     ) -> None:
         super().__init__()
         # the network and the optimizer/scheduler factories stay out of the checkpoint's hparams: checkpoints then hold
         # plain data only and load with torch.load(weights_only=True); the model is rebuilt from the run's config
-        self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler"])
+        self.save_hyperparameters(logger=False, ignore=["net", "optimizer", "scheduler", "criterion"])
         self.optimizer_factory = optimizer
         self.scheduler_factory = scheduler
         if not 0 <= min_touches <= max_touches or max_touches < 1:
@@ -146,6 +153,8 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
             laplacian_stage_weights=laplacian_stage_weights,
             move_from_stage=move_from_stage,
         )
+        if criterion is not None:  # a network with a loss of its own (the Chart-based method)
+            self.criterion = criterion
         self.eval_touches = sorted({int(k) for k in eval_touches})
         self.class_names = None if class_names is None else [str(c) for c in class_names]
         self.output_dir = output_dir

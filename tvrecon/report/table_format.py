@@ -60,6 +60,10 @@ PRETTY_NAMES: dict[str, str] = {
     "touch_geometry_view_pass": "Touch geometry, a view-alone pass on every sample (beyond the paper)",
     "touch_residual": "Touch geometry as a correction of Pixel2Mesh (beyond the paper)",
     "touch_cascade": "Touch geometry on the Pixel2Mesh answer (beyond the paper)",
+    "chart_based": "Chart-based (Smith et al. 2020)",
+    "chart_based_predicted": "Chart-based, touch charts predicted from the tactile images",
+    "chart_based_visual": "Chart-based, visual only",
+    "chart_based_tactile": "Chart-based, tactile only",
     "smoke": "Ours (smoke, tiny data)",
     "classify": "Tactile classifier",
     "classify_paper_cpu": "Tactile classifier",
@@ -150,6 +154,10 @@ RECON_TOUCHES: tuple[int, ...] = (2, 5, 10)
 
 # Row order of Tables 3 and 4 (paper order), unknown names after these in input order.
 ROW_ORDER: tuple[str, ...] = (
+    "chart_based",  # the paper's Table 3 lists the Chart-based method first
+    "chart_based_predicted",
+    "chart_based_visual",
+    "chart_based_tactile",
     "visual_only",
     "tactile_only",
     "full",

@@ -67,7 +67,7 @@ __all__ = [
 
 DEFAULT_CLASSES: tuple[str, ...] = RECON_CLASSES  # the paper's 10 reconstruction classes, in Table 4's order
 
-VISUAL_FOOTNOTE = "* a model that reads touches (fusion, touch geometry) evaluated with every touch masked out."
+VISUAL_FOOTNOTE = "* a model that reads touches (fusion, touch geometry, chart-based) with every touch masked out."
 
 
 def _label(result: Mapping[str, Any], duplicates: set[str]) -> str:
