@@ -14,7 +14,7 @@ from tvrecon.models.components.touch_charts import (
     fit_touch_charts,
     sensor_frames,
 )
-from tvrecon.sim.sensor.pad import sensor_frame
+from tvrecon.sim.sensor.elastic_pad import sensor_frame
 
 
 def test_sensor_frames_match_the_pads() -> None:

@@ -23,7 +23,7 @@ from torch import Tensor, nn
 from tvrecon.losses.chamfer import chamfer_terms, nearest_neighbors
 from tvrecon.losses.mesh import edge_length_loss
 from tvrecon.losses.metrics import sample_points_on_mesh
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["CHART_WEIGHTS", "ChartLoss", "sampled_chamfer", "touch_chart_loss"]
 

@@ -45,7 +45,7 @@ from tvrecon.models.components.ellipsoid import mesh_edges
 from tvrecon.models.components.reconstructor import check_view
 from tvrecon.models.components.touch_charts import TouchChartPredictor, fit_touch_charts
 from tvrecon.utils.geometry import world_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["CHART_MODES", "TOUCH_CHART_SOURCES", "ChartBasedReconstructor"]
 

@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from tvrecon.models.components.gcn import PerceptualPooling
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["ChartDeformer", "ChartGraphConv", "VISION_FLAG"]
 

@@ -26,7 +26,7 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.models.components.ellipsoid import mesh_edges, unpool_faces
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["ChartTemplate", "chart_adjacency", "chart_sphere", "grid_chart_faces", "icosahedron"]
 

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["TouchChartPredictor", "TouchChartUNet", "fit_touch_charts", "sensor_frames"]
 
@@ -34,8 +34,8 @@ __all__ = ["TouchChartPredictor", "TouchChartUNet", "fit_touch_charts", "sensor_
 def sensor_frames(directions: Tensor) -> Tensor:
     """Sensor frames of press directions, batched: columns (e_x, e_y, e_z) with ``e_z = -direction``.
 
-    The in-plane axis follows the pad's rule (:func:`tvrecon.sim.sensor.pad.sensor_frame`): world x projected onto the
-    contact plane, or world y where the press is within ~25 degrees of the x axis. Zero directions (padded touches)
+    The in-plane axis follows the pad's rule (:func:`tvrecon.sim.sensor.elastic_pad.sensor_frame`): world x projected
+    onto the contact plane, or world y where the press is within ~25 degrees of the x axis. Zero directions (padded touches)
     give the identity.
 
     Args:
