@@ -35,8 +35,8 @@ def sensor_frames(directions: Tensor) -> Tensor:
     """Sensor frames of press directions, batched: columns (e_x, e_y, e_z) with ``e_z = -direction``.
 
     The in-plane axis follows the pad's rule (:func:`tvrecon.sim.sensor.elastic_pad.sensor_frame`): world x projected
-    onto the contact plane, or world y where the press is within ~25 degrees of the x axis. Zero directions (padded touches)
-    give the identity.
+    onto the contact plane, or world y where the press is within ~25 degrees of the x axis. Zero directions (padded
+    touches) give the identity.
 
     Args:
         directions: (N, 3) float press directions (into the object).
