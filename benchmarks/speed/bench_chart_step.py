@@ -6,7 +6,7 @@ T = 10 touches of 64 px tactile maps, 31 x 31 contact layers with ~290 contact p
 a sphere at the origin, the camera at distance 2 on -z), every touch in use. The experiments take turns within each
 repeat, so a load on the machine falls on all of them alike; compare the medians (and minima) as ratios.
 
-    .venv/bin/python benchmarks/bench_chart_step.py [--experiments chart_based full visual_only] [--threads 1]
+    .venv/bin/python -m benchmarks.speed.bench_chart_step [--experiments chart_based full visual_only] [--threads 1]
         [--repeats 4] [--data paper_cpu]
 """
 
@@ -16,23 +16,20 @@ import argparse
 import math
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
 
+import hydra
 import torch
 import torch.nn.functional as F
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import open_dict
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from tvrecon.models.recon_batch import gt_to_camera
+
+ROOT = Path(__file__).resolve().parents[2]
 os.environ.setdefault("PROJECT_ROOT", str(ROOT))
-
-import hydra  # noqa: E402
-from hydra import compose, initialize_config_dir  # noqa: E402
-from hydra.core.global_hydra import GlobalHydra  # noqa: E402
-from omegaconf import open_dict  # noqa: E402
-
-from tvrecon.models.recon_batch import gt_to_camera  # noqa: E402
 
 
 def make_batch(B: int = 8, T: int = 10, H: int = 128, h: int = 64, pad: int = 31) -> dict[str, torch.Tensor]:
