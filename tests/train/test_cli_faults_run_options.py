@@ -122,3 +122,12 @@ def test_train_cli_refuses_in_one_line(tmp_path: Path, override: str, message: s
     assert len(lines) == 1 and lines[0].startswith(message), proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "metrics.json").exists()
+
+
+def test_cls_fuse_names_a_missing_folder(tmp_path: Path) -> None:
+    from eval import fused_members
+
+    missing = tmp_path / "no_such_run"
+    cfg = compose_config("eval", ["ckpt_path=x.ckpt", f"cls_fuse=[{missing}]"], tmp_path)
+    with pytest.raises(FileNotFoundError, match=rf"^cls_fuse=\[{missing}\]: no such run folder or checkpoint"):
+        fused_members(cfg, "tvrecon.models.lit_cls.ClassificationModule", tmp_path / "x.ckpt")
