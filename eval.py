@@ -33,15 +33,14 @@ from tvrecon.report.fused_classifiers import (  # noqa: E402
     fuse_into,
     load_trained_classifier,
 )
-from tvrecon.report.run import (  # noqa: E402
+from tvrecon.report.run_report import report_tables, save_results  # noqa: E402
+from tvrecon.report.table_format import Table  # noqa: E402
+from tvrecon.report.tables import data_protocol  # noqa: E402
+from tvrecon.train.run_control import (  # noqa: E402
     check_model_matches_data,
     exit_on_sigterm,
     fix_test_touches,
-    report_tables,
-    save_results,
 )
-from tvrecon.report.table_format import Table  # noqa: E402
-from tvrecon.report.tables import data_protocol  # noqa: E402
 from tvrecon.utils.checkpoint import CorruptCheckpointError, load_run  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
 from tvrecon.utils.run_options import check_run_options  # noqa: E402
@@ -219,7 +218,7 @@ def measure_fusion_share(model: L.LightningModule, datamodule: L.LightningDataMo
 
 def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningDataModule, cfg: DictConfig) -> dict:
     """With ``cfg.bn_recalibrate_batches`` = K > 0: recompute the model's BatchNorm statistics over K training
-    batches (:mod:`tvrecon.models.bn_recalibrate`) with the touches of ``cfg.bn_recalibrate_touches`` ("train": each
+    batches (:mod:`tvrecon.train.bn_recalibrate`) with the touches of ``cfg.bn_recalibrate_touches`` ("train": each
     sample's count drawn as in a training step; "max": all ``max_touches``, as validation). Returns what was done
     (``{}`` when K = 0), for metrics.json.
 
@@ -240,7 +239,7 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
     masks = {"train": model.training_mask, "max": model.full_mask}
     if touches not in masks:
         raise ValueError(f"bn_recalibrate_touches must be 'train' or 'max', got {touches!r}")
-    from tvrecon.models.bn_recalibrate import batchnorm_statistics, recalibrate_module, statistics_shift, worst_layers
+    from tvrecon.train.bn_recalibrate import batchnorm_statistics, recalibrate_module, statistics_shift, worst_layers
 
     datamodule.setup("fit")
     torch.manual_seed(int(cfg.seed))  # the training touch counts drawn, and the loader's shuffle

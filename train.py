@@ -29,35 +29,21 @@ import torch  # noqa: E402
 from lightning.pytorch.loggers import CSVLogger, Logger  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-from tvrecon.models.warm_start import FreezeParameters, load_initial_weights  # noqa: E402
-from tvrecon.report.csv_resume import restore_csv_history  # noqa: E402
-from tvrecon.report.run import (  # noqa: E402  (also importable from train)
+from tvrecon.report.run_report import report_tables, save_results  # noqa: E402
+from tvrecon.report.tables import data_protocol  # noqa: E402
+from tvrecon.report.viz import plot_loss_curves  # noqa: E402
+from tvrecon.train.csv_resume import restore_csv_history  # noqa: E402
+from tvrecon.train.run_control import (  # noqa: E402
     check_model_matches_data,
     exit_on_sigterm,
     fix_test_touches,
-    last_checkpoint,
-    report_tables,
-    save_results,
 )
-from tvrecon.report.tables import data_protocol  # noqa: E402
-from tvrecon.report.viz import plot_loss_curves  # noqa: E402
+from tvrecon.train.warm_start import FreezeParameters, load_initial_weights  # noqa: E402
 from tvrecon.utils.checkpoint import check_checkpoint  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
 from tvrecon.utils.run_options import check_run_options  # noqa: E402
 
-__all__ = [
-    "check_freeze",
-    "check_training_length",
-    "exit_on_sigterm",
-    "fix_test_touches",
-    "instantiate_callbacks",
-    "instantiate_loggers",
-    "last_checkpoint",
-    "main",
-    "report_tables",
-    "save_results",
-    "train",
-]
+__all__ = ["check_freeze", "check_training_length", "instantiate_callbacks", "instantiate_loggers", "main", "train"]
 
 log = logging.getLogger("train")
 

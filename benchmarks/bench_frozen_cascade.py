@@ -1,7 +1,7 @@
 """Cost of a training step of ``touch_cascade`` with its visual path fixed (``freeze=``), against the joint cascade.
 
 ``train.py experiment=touch_cascade init_from=<visual run> 'freeze=[net.visual,net.deformer.stages]'`` trains touch
-geometry's deformer on a trained, fixed Pixel2Mesh (``tvrecon/models/warm_start.py``). This script times, in one
+geometry's deformer on a trained, fixed Pixel2Mesh (``tvrecon/train/warm_start.py``). This script times, in one
 process on the same synthetic batch (``bench_train_step.synthetic_batch``: the ``small`` / ``paper_cpu`` shapes,
 B = 8 views of 128 px, T = 10 touches of 64 px maps, plus contact patches of 31 x 31 points), one optimizer step of
 
@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train_step import build_module, synthetic_batch, time_steps, train_step  # noqa: E402
 
 from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
-from tvrecon.models.warm_start import FreezeParameters  # noqa: E402
+from tvrecon.train.warm_start import FreezeParameters  # noqa: E402
 
 FROZEN = ("net.visual", "net.deformer.stages")
 

@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from hydra.utils import instantiate  # noqa: E402
 
 from tvrecon.data.presets import compose_preset  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.touches.policies import sample_touches  # noqa: E402
 from tvrecon.sim import EIPSimulator, PressConfig, SensorConfig  # noqa: E402
 from tvrecon.sim.mpm.solver import MLSMPM  # noqa: E402
 from tvrecon.sim.press.loop import PressLoop  # noqa: E402

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sim"))  # the physics checks live with the tests
-from physics_checks import (
+from tvrecon.sim.validation.physics_checks import (
     SlabPress,
     draw_contact_theory,
     hertz_force,
@@ -39,7 +39,7 @@ from physics_checks import (
     winkler_force,
     winkler_radius,
 )
-from quasi_static import hold_means
+from tvrecon.sim.validation.quasi_static import hold_means
 
 OFFSETS = (0.0, 0.25, 0.5, 0.75)
 E0, NU0 = 3.0, 0.25

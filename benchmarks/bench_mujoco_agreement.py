@@ -3,10 +3,10 @@
 Scene, identical in both engines (no gravity): an object of the library standing fixed at the origin (the
 pick-and-place's prepared mesh, 6.5 cm), and one finger, the MuJoCo gripper's pad box (2.2 x 1 x 3.2 cm), on a
 prismatic joint along +y, pushed against the object's side by a motor of ``--force`` newtons until it settles. The
-pybullet :class:`~tvrecon.robot.finger.TactileFinger` and the MuJoCo
-:class:`~tvrecon.robot.mujoco_sensor.TactileSensor` then read the pad with the same :class:`PadConfig` (same EIP
-press code behind both, ``tvrecon.robot.pad``). What can differ is what each engine hands the pad: the contact force
-(the press depth is max(penetration, force / stiffness)), the penetration, the contact points, and the finger's
+pybullet :class:`~tvrecon.robot.pybullet.finger.TactileFinger` and the MuJoCo
+:class:`~tvrecon.robot.mujoco.sensor.TactileSensor` then read the pad with the same :class:`PadConfig` (same EIP
+press code behind both, ``tvrecon.robot.pad_sensor``). What can differ is what each engine hands the pad: the contact
+force (the press depth is max(penetration, force / stiffness)), the penetration, the contact points, and the finger's
 settled pose (position along the object, tilt).
 
 Prints, per object, each engine's force, penetration, press depth and press centre, and the Pearson correlation of
@@ -29,13 +29,14 @@ import pybullet as p  # noqa: E402
 import torch  # noqa: E402
 
 from tvrecon.data.shapes import make_shape  # noqa: E402
-from tvrecon.robot.finger import TactileFinger  # noqa: E402
-from tvrecon.robot.mujoco_scene import FINGER_HALF, _fmt  # noqa: E402
-from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import LazySimulator
+from tvrecon.robot.mujoco.scene import FINGER_HALF, _fmt  # noqa: E402
+from tvrecon.robot.mujoco.sensor import TactileSensor  # noqa: E402
 from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 from tvrecon.robot.pad_reading import FingerReading
-from tvrecon.robot.scene import collision_shape_for_mesh, prepare_object_mesh  # noqa: E402
+from tvrecon.robot.pad_sensor import LazySimulator
+from tvrecon.robot.pick_place_common import prepare_object_mesh  # noqa: E402
+from tvrecon.robot.pybullet.finger import TactileFinger  # noqa: E402
+from tvrecon.robot.pybullet.scene import collision_shape_for_mesh  # noqa: E402
 
 
 def corr(a: np.ndarray, b: np.ndarray) -> float:

@@ -1,6 +1,6 @@
 """Cost of the MuJoCo TactileSensor (issue 26 targets), measured against the EIP presses alone in the same run.
 
-Scene: the can of the pick-and-place held between the gripper's two pads (``tvrecon.robot.mujoco_scene``), the
+Scene: the can of the pick-and-place held between the gripper's two pads (``tvrecon.robot.mujoco.scene``), the
 demo's pad (24x24x4 on n_grid 64) unless told otherwise. Rows:
 
 - ``step, 2 pads in contact (new presses)``: ``mj_step`` + ``sense_pads(refresh=True)``: contacts read, both
@@ -28,10 +28,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from tvrecon.data.shapes import make_shape  # noqa: E402
-from tvrecon.robot.mujoco_scene import MujocoScene  # noqa: E402
-from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import LazySimulator, sense_pads
+from tvrecon.robot.mujoco.scene import MujocoScene  # noqa: E402
+from tvrecon.robot.mujoco.sensor import TactileSensor  # noqa: E402
 from tvrecon.robot.pad_config import PadConfig  # noqa: E402
+from tvrecon.robot.pad_sensor import LazySimulator, sense_pads
 
 
 def _time(fn, repeats: int) -> float:

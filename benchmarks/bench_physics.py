@@ -30,7 +30,7 @@ from tvrecon.sim.press.config import DEFAULT_THRESHOLD
 from tvrecon.sim.sensor import SensorConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sim"))  # the physics checks live with the tests
-from physics_checks import (
+from tvrecon.sim.validation.physics_checks import (
     draw_contact_theory,
     free_oscillation,
     free_slab_impact,

@@ -43,10 +43,10 @@ sys.path.insert(0, str(ROOT))
 
 from tvrecon.data.presets import compose_preset  # noqa: E402
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.touches.policies import sample_touches, simulate_touches  # noqa: E402
 from tvrecon.sim.mpm.state import CONTACT_MODES  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig  # noqa: E402
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.elastic_pad import SensorConfig  # noqa: E402
 
 
 def import_old(rev: str, where: Path):

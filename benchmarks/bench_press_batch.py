@@ -6,7 +6,7 @@
 For each object (one class of ``available_classes()`` each, from ``--first``) ``--touches`` seeded cone-policy touches
 are pressed with the paper preset (64x64x6 pad, n_grid 128) twice, alternating which goes first, on one thread:
 one ``press`` per touch, and ``simulate_touches`` (one ``press_batch`` per press strength, as
-``tvrecon.data.generated_dataset`` does for an item). Prints the CPU seconds per touch of both, their ratio and how far
+``tvrecon.data.dataset_base`` does for an item). Prints the CPU seconds per touch of both, their ratio and how far
 the readings are apart (batched equals single to float round-off: a block's contact force is summed per scene, but
 the shared loop stops each touch at its own step). Only ratios from one process mean something on a loaded machine.
 """
@@ -24,9 +24,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.touches.policies import sample_touches, simulate_touches  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.elastic_pad import SensorConfig  # noqa: E402
 
 
 def main() -> None:

@@ -26,9 +26,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.touches.policies import sample_touches  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.elastic_pad import SensorConfig  # noqa: E402
 
 
 def main() -> None:

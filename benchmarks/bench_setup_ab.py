@@ -32,9 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_press_ab import import_old  # noqa: E402
 
 from tvrecon.data.shapes.registry import available_classes, make_shape  # noqa: E402
-from tvrecon.data.touches import sample_touches  # noqa: E402
+from tvrecon.data.touches.policies import sample_touches  # noqa: E402
 from tvrecon.sim.press import EIPSimulator, PressConfig, placement  # noqa: E402
-from tvrecon.sim.sensor.pad import SensorConfig  # noqa: E402
+from tvrecon.sim.sensor.elastic_pad import SensorConfig  # noqa: E402
 
 
 def same(a, b) -> bool:

@@ -6,8 +6,8 @@ call (``CompiledKernels``) and the fused C++ loops (``compiled.scatter.fused_p2g
     OMP_NUM_THREADS=1 python benchmarks/bench_step_kernels.py [--batch 10] [--device cpu] [--keep-heap]
 
 Prints the call's wall and CPU time, its steps, and per kernel the ms per call, the calls and the share of the
-call (``--keep-heap``: :func:`tvrecon.utils.heap.keep_freed_memory` first, as ``generate`` does); ``fused_step`` is
-the whole compiled step (the kernels plus its eager glue), the rest of the call the press
+call (``--keep-heap``: :func:`tvrecon.utils.freed_memory.keep_freed_memory` first, as ``generate`` does); ``fused_step``
+is the whole compiled step (the kernels plus its eager glue), the rest of the call the press
 loop, set-up and readings. On CUDA each call is synchronized before and after (the times then include the launch
 and the wait). Only shares and ratios from one run mean something on a loaded machine.
 """
@@ -35,7 +35,7 @@ import tvrecon.sim.mpm.free_flight as free_flight  # noqa: E402
 import tvrecon.sim.mpm.particle_contact as particle_contact  # noqa: E402
 import tvrecon.sim.mpm.solver as solver  # noqa: E402
 from tvrecon.sim import EIPSimulator  # noqa: E402
-from tvrecon.utils.heap import keep_freed_memory  # noqa: E402
+from tvrecon.utils.freed_memory import keep_freed_memory  # noqa: E402
 
 
 def main() -> None:

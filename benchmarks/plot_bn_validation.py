@@ -7,7 +7,7 @@ The stored curve is the run's own ``csv/metrics.csv`` (``val/chamfer`` per epoch
 recomputed points are ``eval.py split=val bn_recalibrate_batches=K`` results of the run's epoch checkpoints
 (``callbacks.model_checkpoint.save_top_k=-1`` keeps them all), read from every ``metrics.json`` below ``--evals``
 that has ``bn_recalibrated``; a checkpoint ``epoch_007.ckpt`` is epoch 7. A validation jump that the recomputed
-statistics remove is a statistics mismatch, not a worse network (``tvrecon/models/bn_recalibrate.py``).
+statistics remove is a statistics mismatch, not a worse network (``tvrecon/train/bn_recalibrate.py``).
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ from hydra.utils import instantiate
 
 import tvrecon.sim.mpm.particle_contact as pc
 from tvrecon.data.presets import compose_preset
-from tvrecon.data.touches import Touches, sample_touches, simulate_touches
+from tvrecon.data.touches.policies import Touches, sample_touches, simulate_touches
 from tvrecon.sim.mpm import MLSMPM
 
 CONSTANTS = ("ITERATIONS", "PUSH_CAP_CELLS", "PUSH_OUT")

@@ -3,9 +3,12 @@
 Every ``import`` of every module of :mod:`tvrecon` is read with :mod:`ast`, wherever it stands: at module level, inside
 a function, or under ``if TYPE_CHECKING:`` (a type-only import of a sibling still ties the two modules together).
 
-Layers, bottom to top: ``utils < sim < data < losses, models < robot < report < entry points``. Entry points are the
-command lines (``__main__`` modules), which may use any layer. Inside :mod:`tvrecon.sim` the rooms have their own order:
-``bodies < mpm < sensor < press``; the package's ``__init__`` and its plots and CLI sit on top of them.
+Layers, bottom to top: ``utils < sim < data < losses, models < train, robot < report < entry points``. Entry points are
+the command lines (``__main__`` modules), which may use any layer. Inside :mod:`tvrecon.sim` the rooms have their own
+order: ``bodies < mpm < sensor < press``; the package's ``__init__``, its plots, CLI and physics checks sit on top of
+them. Inside :mod:`tvrecon.robot` the engine-free core (the modules outside a room) sits below one room per physics
+engine, and the engines' rooms never import each other. No module imports a command line's module (the datamodule
+calls the worker pool, not ``python -m tvrecon.data.generate``).
 """
 
 from __future__ import annotations
@@ -16,10 +19,20 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "tvrecon"
 
 #: rank of each top-level room (equal ranks may import each other, as long as no cycle forms)
-LAYERS = {"utils": 0, "sim": 1, "data": 2, "losses": 3, "models": 3, "robot": 4, "report": 5}
+LAYERS = {"utils": 0, "sim": 1, "data": 2, "losses": 3, "models": 3, "train": 4, "robot": 4, "report": 5}
 ENTRY = 6
 #: the rooms of tvrecon.sim, bottom to top; the sim package itself (its __init__) and sim modules outside them sit above
 SIM_ROOMS = {"bodies": 0, "mpm": 1, "sensor": 2, "press": 3}
+#: the rooms of tvrecon.robot, one per physics engine, above the engine-free core and apart from each other
+ROBOT_ROOMS = ("pybullet", "mujoco")
+#: the command-line modules besides the ``__main__`` ones: entry points, imported by no module of the package
+CLI_MODULES = (
+    "tvrecon.data.generate",
+    "tvrecon.data.preview",
+    "tvrecon.data.touches.sweep_figure",
+    "tvrecon.robot.pybullet.pick_place",
+    "tvrecon.robot.mujoco.pick_place",
+)
 
 
 def modules() -> dict[str, Path]:
@@ -134,6 +147,30 @@ def test_no_import_cycles() -> None:
 
 def test_imports_point_down() -> None:
     assert upward(graph()) == []
+
+
+def robot_room(name: str) -> str | None:
+    """The engine room of a tvrecon.robot module (None: the engine-free core)."""
+    parts = name.split(".")
+    return parts[2] if len(parts) > 2 and parts[1] == "robot" and parts[2] in ROBOT_ROOMS else None
+
+
+def test_robot_core_and_engine_rooms_stay_apart() -> None:
+    """The core imports no engine room, and an engine room imports no other engine's room."""
+    wrong = [
+        f"{a} -> {b}"
+        for a, targets in graph().items()
+        if a.startswith("tvrecon.robot")
+        for b in targets
+        if robot_room(b) is not None and robot_room(b) != robot_room(a)
+    ]
+    assert sorted(wrong) == []
+
+
+def test_no_module_imports_a_command_line() -> None:
+    known = modules()
+    assert set(CLI_MODULES) <= set(known), "a command line moved: update CLI_MODULES"
+    assert sorted(f"{a} -> {b}" for a, targets in graph().items() for b in targets if b in CLI_MODULES) == []
 
 
 def test_only_init_files_re_export() -> None:

@@ -9,11 +9,11 @@ import pytest
 import torch
 import trimesh
 
-from tvrecon.data.cache import cache_key
-from tvrecon.data.datasets import ReconstructionDataset, TactileClassificationDataset
+from tvrecon.data.cache.store import cache_key
 from tvrecon.data.shapes import ObjectLibrary
-from tvrecon.data.touches import Touches
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.data.task_datasets import ReconstructionDataset, TactileClassificationDataset
+from tvrecon.data.touches.policies import Touches
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.utils.config_utils import coerce_config
 
 # tiny simulation: 8x8 pad, 3 layers, 32^3 grid, short fast presses, one press strength
@@ -307,7 +307,7 @@ def test_patch_min_push_keeps_the_deeper_pushed_points_of_the_same_cache_entry(r
 
 def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
     """Issue 14 case 14: `sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
-    from tvrecon.data.cache import cache_key
+    from tvrecon.data.cache.store import cache_key
     from tvrecon.sim.sensor import SensorConfig
     from tvrecon.utils.config_utils import coerce_config
 

@@ -8,7 +8,7 @@ import torch
 from torch import nn
 
 from tvrecon.data.datamodule import ClassificationDataModule, device_resize
-from tvrecon.data.touches import resize_tactile
+from tvrecon.data.touches.policies import resize_tactile
 
 # tiny simulation (about 1 s for the 2 objects x 3 touches): 8x8 pad, 3 layers, 32^3 grid
 SIM = {

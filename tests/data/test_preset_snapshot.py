@@ -41,7 +41,7 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from tvrecon.data.cache import cache_key
+from tvrecon.data.cache.store import cache_key
 from tvrecon.data.presets import compose_preset, default_cache_dir, preset_names
 
 ROOT = Path(__file__).resolve().parents[2]

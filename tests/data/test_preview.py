@@ -9,7 +9,7 @@ import trimesh
 from PIL import Image
 
 from tvrecon.data.preview import draw_preview, main, save_figure_atomic
-from tvrecon.data.touches import ConeTouchPolicy, sample_touches
+from tvrecon.data.touches.policies import ConeTouchPolicy, sample_touches
 from tvrecon.data.views import render_view, sample_camera
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -14,7 +14,7 @@ from tvrecon.data.shapes import available_classes
 from tvrecon.sim import EIPSimulator
 from tvrecon.sim.__main__ import load_shape, main
 from tvrecon.sim.press.config import PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 SMALL = ["--n-grid", "32", "--resolution", "6", "--layers", "3", "--depth", "0.5", "--frames", "2", "--threads", "1"]
 

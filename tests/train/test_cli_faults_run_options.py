@@ -17,7 +17,7 @@ import torch
 from conftest import ROOT, compose_config
 from omegaconf import OmegaConf, open_dict
 
-from tvrecon.models.warm_start import FreezeParameters
+from tvrecon.train.warm_start import FreezeParameters
 from tvrecon.report.table_format import fmt
 from tvrecon.utils.run_options import check_run_options
 

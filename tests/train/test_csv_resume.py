@@ -9,7 +9,7 @@ import torch
 from conftest import compose_config
 from omegaconf import OmegaConf, open_dict
 
-from tvrecon.report.csv_resume import rows_before_checkpoint
+from tvrecon.train.csv_resume import rows_before_checkpoint
 
 
 def _rows(path: Path) -> list[dict[str, str]]:

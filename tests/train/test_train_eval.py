@@ -121,7 +121,7 @@ def test_fast_dev_run_train_prints_tables(tmp_path: Path, capsys: pytest.Capture
 def test_precise_bn_recalibrates_before_the_validation_of_a_real_fit(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import tvrecon.models.bn_recalibrate as bn
+    import tvrecon.train.bn_recalibrate as bn
     from train import train
 
     calls: list[tuple[int, int]] = []

@@ -20,11 +20,11 @@ import torch
 from lightning import LightningDataModule
 from torch.utils.data import DataLoader, Dataset
 
-from tvrecon.data.cache_housekeeping import announce_uncached, remove_stale_tmp
-from tvrecon.data.datasets import EvalDraws, ReconstructionDataset, TactileClassificationDataset
-from tvrecon.data.generated_dataset import GeneratedDataset
+from tvrecon.data.cache.housekeeping import announce_uncached, remove_stale_tmp
+from tvrecon.data.dataset_base import GeneratedDataset
 from tvrecon.data.shapes import ObjectLibrary
-from tvrecon.data.touches import resize_tactile
+from tvrecon.data.task_datasets import EvalDraws, ReconstructionDataset, TactileClassificationDataset
+from tvrecon.data.touches.policies import resize_tactile
 from tvrecon.utils.config_utils import check_whole
 
 __all__ = ["ReconstructionDataModule", "ClassificationDataModule", "device_resize", "worker_init"]
@@ -131,7 +131,7 @@ class _GeneratedDataModule(LightningDataModule):
         """Pre-generate every configured split into the cache when ``pregenerate`` is set (rank 0 only)."""
         if not self.pregenerate:
             return
-        from tvrecon.data.generate import pregenerate_splits
+        from tvrecon.data.generation.pool import pregenerate_splits
 
         sets = {name: self.make_dataset(name) for name in self.available_splits()}
         pregenerate_splits(sets, workers=self.pregenerate_workers)  # one pool of workers for every split
@@ -203,7 +203,7 @@ def device_resize(batch: Any, size: int | None) -> Any:
 
 
 class ReconstructionDataModule(_GeneratedDataModule):
-    """Datamodule of :class:`~tvrecon.data.datasets.ReconstructionDataset` splits.
+    """Datamodule of :class:`~tvrecon.data.task_datasets.ReconstructionDataset` splits.
 
     Split mappings need ``num_samples``. Shared dataset arguments (``min_touches``, ``max_touches``,
     ``num_touches``, ``num_points``, ``tactile_size``, ``tactile_scale``, ``sensor``, ``press``, ``touch``,
@@ -218,13 +218,13 @@ class ReconstructionDataModule(_GeneratedDataModule):
 
 
 class ClassificationDataModule(_GeneratedDataModule):
-    """Datamodule of :class:`~tvrecon.data.datasets.TactileClassificationDataset` splits.
+    """Datamodule of :class:`~tvrecon.data.task_datasets.TactileClassificationDataset` splits.
 
     Split mappings need ``num_objects``; ``touches_per_object`` and ``num_touches`` (N) are shared arguments.
     Batch: tactile (B,N,3,h,w), touch_mask (B,N) bool, positions (B,N,3), directions (B,N,3), label (B,) int64.
 
     The ``train`` split draws its N touches afresh every epoch (``redraw_touches`` defaults to True there and to
-    False in ``val`` / ``test``; a split mapping may set it), see :mod:`tvrecon.data.touch_select`. The epoch reaches
+    False in ``val`` / ``test``; a split mapping may set it), see :mod:`tvrecon.data.touches.select`. The epoch reaches
     the dataset from :meth:`~tvrecon.models.lit_cls.ClassificationModule.on_train_epoch_start`, which needs workers
     re-created every epoch: ``persistent_workers=True`` with a redrawing train split raises ValueError.
     ``rotate_touches`` (shared, default False) turns on the orientation augmentation of the training draws;
@@ -255,7 +255,7 @@ class ClassificationDataModule(_GeneratedDataModule):
 
     def _served(self, name: str) -> Dataset:
         """Evaluation splits with ``eval_draws`` K > 1 serve every object K times
-        (:class:`~tvrecon.data.datasets.EvalDraws`); otherwise the split's dataset."""
+        (:class:`~tvrecon.data.task_datasets.EvalDraws`); otherwise the split's dataset."""
         dataset = self.datasets[name]
         if dataset.redraw_touches or dataset.selector.draws == 1:
             return dataset

@@ -4,7 +4,7 @@ Objects stand upright (+z up, :func:`tvrecon.data.views.sample_camera`) but a ro
 object faces. Turning every touch of a sample, its position, press direction and contact patch, by one angle about
 +z gives the same object in another heading: the touches keep their relative geometry and their relation to
 gravity. Training with a random heading per visit (``rotate_pose``) keeps a classifier that reads touch positions
-from learning the library's canonical heading (:meth:`tvrecon.data.touch_select.TouchSelector.yaw`).
+from learning the library's canonical heading (:meth:`tvrecon.data.touches.select.TouchSelector.yaw`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import math
 import torch
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["turn_about_up"]
 

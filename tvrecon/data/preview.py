@@ -24,11 +24,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from tvrecon.data.touches import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
+from tvrecon.data.touches.policies import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
 from tvrecon.data.views import Camera, project_points, render_view, sample_camera  # noqa: E402
 from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
-from tvrecon.utils.output_dir import announce, output_dir
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.output_dir import announce, output_dir  # noqa: E402
+from tvrecon.utils.shape_check import check_shape  # noqa: E402
 
 __all__ = ["make_preview", "draw_preview", "save_figure_atomic", "main"]
 
@@ -190,7 +190,7 @@ def make_preview(
     from tvrecon.data.shapes.shape_arg import shape_or_mesh_file
     from tvrecon.sim.press.config import PressConfig
     from tvrecon.sim.press.simulator import EIPSimulator
-    from tvrecon.sim.sensor.pad import SensorConfig
+    from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
     if int(touches) < 1:
         raise ValueError(f"touches must be >= 1, got {touches}")

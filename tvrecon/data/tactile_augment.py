@@ -6,8 +6,8 @@ Image convention (:mod:`tvrecon.sim.sensor`, :class:`tvrecon.sim.press.reading.T
 normal displacement along ``e_z`` (a scalar under in-plane rotations; > 0 pushed into the pad). Pixel ``(i, j)``
 sits at local ``x = (j - (W-1)/2) s``, ``y = (i - (H-1)/2) s``. The frame is right-handed, ``e_z = -direction``
 points from the object to the hand, and ``e_x`` is the world x axis projected on the contact plane
-(:func:`tvrecon.sim.sensor.pad.sensor_frame`): a convention, not physics. A touch with the pad turned about ``e_z``
-is another valid touch of the same object, and its image is the original one with the pixel grid *and* the
+(:func:`tvrecon.sim.sensor.elastic_pad.sensor_frame`): a convention, not physics. A touch with the pad turned about
+``e_z`` is another valid touch of the same object, and its image is the original one with the pixel grid *and* the
 (x, y) displacement vectors rotated together.
 
 Mirroring (``x -> -x``: columns reversed, x shear negated) gives the touch of the mirror-image object, which is a
@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["rotate_tactile", "orient_touches"]
 

@@ -21,7 +21,7 @@ import trimesh
 from torch import Tensor
 
 from tvrecon.utils.geometry import check_mesh, world_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 try:  # Embree (embreex) ray casts, much faster than the pure-python triangle intersector.
     from trimesh.ray.ray_pyembree import RayMeshIntersector as _Intersector

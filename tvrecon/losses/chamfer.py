@@ -11,7 +11,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["ChamferDistance", "ChamferResult", "chamfer_distance", "chamfer_terms", "nearest_neighbors"]
 

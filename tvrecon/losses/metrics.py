@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.losses.chamfer import chamfer_terms
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "DEFAULT_FSCORE_THRESHOLDS",

@@ -1,11 +1,11 @@
 """LightningModule of the N-touch tactile classifier (paper section 4.2, Table 2).
 
-Which touches a sample shows is decided by the dataset (:mod:`tvrecon.data.touch_select`, the one owner of that
+Which touches a sample shows is decided by the dataset (:mod:`tvrecon.data.touches.select`, the one owner of that
 choice): the training split draws N of the object's cached touches afresh at every epoch, in random order (the
 paper: "during each training iteration, we randomly choose N tactile images"), validation and test serve a fixed
 subset. This module keeps the first ``num_touches`` valid touches it is given (a uniform random subset in training,
 since the draw is in random order) and draws nothing itself; at every ``on_train_epoch_start`` it passes the epoch
-to the training datasets (:func:`~tvrecon.data.touch_select.set_loader_epoch`). The network sees the touches
+to the training datasets (:func:`~tvrecon.data.touches.select.set_loader_epoch`). The network sees the touches
 stacked as ``(B, N, 3, h, w)``.
 """
 
@@ -19,12 +19,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from tvrecon.data.touch_select import set_loader_epoch
+from tvrecon.data.touches.select import set_loader_epoch
 from tvrecon.models.class_names import datamodule_class_names
 from tvrecon.models.finite_loss import check_finite_loss
 from tvrecon.models.heading_ensemble import check_headings, heading_ensemble
 from tvrecon.models.optim import configure_optimizers
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["ClassificationModule", "gather_touches", "other_object_index", "select_touches", "touch_index"]
 

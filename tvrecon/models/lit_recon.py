@@ -4,7 +4,7 @@ Training: the ground-truth surface points and normals (world frame) are mapped t
 view's RT, the number of touches is drawn per sample (k ~ U{min_touches..max_touches}, later touches masked out;
 the paper's "1 to 10 tactile images per iteration"; the reconstruction data presets serve all ``max_touches``
 cached touches, so this is the only draw; which touches every path uses is summarised in
-:mod:`tvrecon.data.touch_select`), and the Pixel2Mesh loss terms of
+:mod:`tvrecon.data.touches.select`), and the Pixel2Mesh loss terms of
 every deformation stage are weighted by the ``loss_weights`` mapping and summed.
 Each term is logged (progress bar) as ``train/<term>``.
 

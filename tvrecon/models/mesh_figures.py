@@ -15,7 +15,7 @@ import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
 from tvrecon.utils.atomic import atomic_write_text, save_and_close  # noqa: E402
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["export_obj", "render_mesh_comparison"]
 

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.utils.geometry import rotate_to_camera, world_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["PATCH_KEYS", "TOUCH_CONTROLS", "control_batch", "gt_to_camera", "keep_first_touches"]
 

@@ -18,7 +18,7 @@ from torch import Tensor
 
 from tvrecon.losses.chamfer import nearest_neighbors
 from tvrecon.losses.mesh import laplacian_loss
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["refine_to_patches"]
 

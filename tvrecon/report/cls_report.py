@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from tvrecon.report.table_format import CLS_TOUCHES, PRETTY_NAMES, Table, check_results, data_label, data_note, mean_std
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "build_per_class_table",

@@ -1,29 +1,17 @@
-"""Robot scenes with EIP tactile sensors (pybullet): a Panda pick-and-place demo and a reusable TactileFinger.
+"""Robot scenes with EIP tactile sensors: the pad core both physics engines share, and one room per engine.
 
-Needs the optional ``robot`` extra (``pip install tvrecon[robot]`` for pybullet). Entry point::
+The core (this package's modules) imports no engine: the pad on a robot link (:mod:`tvrecon.robot.pad_sensor`,
+:mod:`tvrecon.robot.pad_config`, :mod:`tvrecon.robot.pad_reading`), the grasp planned from a point cloud, what both
+pick-and-place demos share and their figures. Each engine lives in its own room and is imported only there:
 
-    python -m tvrecon.robot.pick_place object=can
-
-MuJoCo (the optional ``mujoco`` extra, imported only from its own modules):
-``tvrecon.robot.mujoco_sensor.TactileSensor`` is the pad on any MuJoCo geom or body,
-``python -m tvrecon.robot.mujoco_pick_place object=can`` the demo. The engine-independent pad both engines share is
-``tvrecon.robot.pad``.
+- :mod:`tvrecon.robot.pybullet` (the optional ``robot`` extra, ``pip install tvrecon[robot]``): ``TactileFinger``
+  on any pybullet link and a Panda pick-and-place, ``python -m tvrecon.robot.pybullet.pick_place object=can``;
+- :mod:`tvrecon.robot.mujoco` (the optional ``mujoco`` extra): ``TactileSensor`` on any MuJoCo geom or body and a
+  floating-gripper pick-and-place, ``python -m tvrecon.robot.mujoco.pick_place object=can``.
 """
 
-from tvrecon.robot.finger import TactileFinger
+from tvrecon.robot.grasp import GraspPlan, plan_top_grasp
 from tvrecon.robot.pad_config import PadConfig
 from tvrecon.robot.pad_reading import FingerReading
-from tvrecon.robot.perception import CameraConfig, GraspPlan, RGBDCamera, plan_top_grasp
-from tvrecon.robot.scene import Scene, SceneConfig
 
-__all__ = [
-    "CameraConfig",
-    "FingerReading",
-    "GraspPlan",
-    "PadConfig",
-    "RGBDCamera",
-    "Scene",
-    "SceneConfig",
-    "TactileFinger",
-    "plan_top_grasp",
-]
+__all__ = ["FingerReading", "GraspPlan", "PadConfig", "plan_top_grasp"]

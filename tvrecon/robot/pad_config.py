@@ -60,7 +60,7 @@ class PadConfig:
     @classmethod
     def from_sensor(cls, sensor: object, pad_size: float = 0.02, **overrides: object) -> PadConfig:
         """A pad with a ``tvrecon.sim.SensorConfig``'s resolution, layers, spacing, E and nu, ``pad_size`` m wide."""
-        from tvrecon.sim.sensor.pad import SensorConfig
+        from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
         if not isinstance(sensor, SensorConfig):
             raise ValueError(f"from_sensor needs a tvrecon.sim.SensorConfig, got {type(sensor).__name__}")

@@ -14,7 +14,7 @@ import imageio.v2 as imageio
 import matplotlib
 
 from tvrecon.utils.atomic import atomic_open, atomic_savefig
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402

@@ -17,7 +17,7 @@ from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.press.reading import TactileReading, reading_patch
 from tvrecon.sim.press.simulator import EIPSimulator
 from tvrecon.sim.press.stop_rules import terminal_chamfer
-from tvrecon.sim.sensor.pad import SensorConfig, alpha_profile, pad_lattice, sensor_frame
+from tvrecon.sim.sensor.elastic_pad import SensorConfig, alpha_profile, pad_lattice, sensor_frame
 from tvrecon.sim.sensor.patch import ContactPatch, contact_patch
 
 __all__ = [

@@ -32,7 +32,7 @@ from tvrecon.sim.plots import save_ply, save_sequence_png, save_tactile_png
 from tvrecon.sim.press.config import TERMINAL_MEASURES, PressConfig
 from tvrecon.sim.press.reading import TactileReading
 from tvrecon.sim.press.simulator import EIPSimulator
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.sim.sensor.presets import SENSOR_PRESETS
 from tvrecon.utils.atomic import atomic_write_bytes
 from tvrecon.utils.cli_errors import call_cli

@@ -4,7 +4,7 @@
 - :func:`save_sequence_png`: the deformation over time, tactile images side by side with a cross-section of the pad.
 - :func:`save_ply`: pad particles as a coloured point cloud.
 - :func:`save_force_png`, :func:`save_markers_png`, :func:`save_rgb_png`, :func:`save_outputs_png`: the sensor
-  outputs beyond displacement (force field, markers, RGB; :mod:`tvrecon.sim.sensor.pad`), in the orientation of
+  outputs beyond displacement (force field, markers, RGB; :mod:`tvrecon.sim.sensor.elastic_pad`), in the orientation of
   ``tactile.png`` (sensor x right, y up).
 
 All writes are atomic (temporary file in the same directory, then ``os.replace``).
@@ -28,7 +28,7 @@ from PIL import Image
 from torch import Tensor
 
 from tvrecon.utils.atomic import atomic_write_bytes
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 
 def _save_figure(fig: Figure, path: str | Path, dpi: int) -> Path:

@@ -1,8 +1,8 @@
 """How every command line of the project fails: one line on stderr and an exit code a script can test.
 
 Every entry point (``python -m tvrecon.sim``, ``tvrecon.data.generate``, ``tvrecon.data.preview``,
-``tvrecon.report.tables``, ``train.py``, ``eval.py``, ``tvrecon.robot.pick_place``) runs its ``main`` through this
-module:
+``tvrecon.report.tables``, ``train.py``, ``eval.py``, ``tvrecon.robot.pybullet.pick_place``) runs its ``main``
+through this module:
 
 - the project's own input checks (``ValueError``, ``TypeError``, a missing file, a Hydra/OmegaConf config error)
   end as ``<prog>: error: <message>`` on ONE line of stderr, exit status 2 (bad input);

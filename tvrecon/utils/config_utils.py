@@ -30,8 +30,8 @@ __all__ = [
 C = TypeVar("C")
 
 #: ``dataclasses.field(metadata=OMIT_IF_DEFAULT)``: a config field added after data was cached. While it holds its
-#: default it stays out of the data cache key (``tvrecon.data.cache``), so the keys of existing samples do not change;
-#: any other value enters the key like every field.
+#: default it stays out of the data cache key (``tvrecon.data.cache.store``), so the keys of existing samples do not
+#: change; any other value enters the key like every field.
 OMIT_IF_DEFAULT = {"cache_key": "omit_if_default"}
 
 #: ``dataclasses.field(metadata=NOT_IN_KEY)``: a config field that never enters the data cache key, whatever its

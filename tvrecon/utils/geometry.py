@@ -17,7 +17,7 @@ import trimesh
 from kornia.geometry.linalg import transform_points
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["check_mesh", "read_mesh_file", "perpendicular_basis", "rt_to_matrix", "world_to_camera", "rotate_to_camera"]
 
@@ -92,8 +92,8 @@ def perpendicular_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors perpendicular to unit direction(s) ``d``: ``e1 = d x a / |d x a|``, ``e2 = d x e1``.
 
     The helper axis ``a`` is world x, or world y where ``|d_x| >= 0.9``; ``(e1, e2, d)`` is right-handed. The pad
-    frame (`tvrecon.sim.sensor.pad.sensor_frame`) chooses its axis the same way but projects it onto the contact plane
-    in float32 torch (its e_x equals ``-e2`` of the press direction up to rounding); it keeps its own code because
+    frame (`tvrecon.sim.sensor.elastic_pad.sensor_frame`) chooses its axis the same way but projects it onto the contact
+    plane in float32 torch (its e_x equals ``-e2`` of the press direction up to rounding); it keeps its own code because
     its rounding decides the pad's in-plane orientation in the cached data.
 
     Args:

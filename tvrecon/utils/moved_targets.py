@@ -4,6 +4,11 @@
 strings name the modules of the release that trained it. :func:`upgrade_targets` rewrites the ones whose module has
 moved since (``tvrecon.models.fusion.TactileVisualFusion`` -> ``tvrecon.models.components.fusion...``) and leaves
 everything else alone. The module depends on no other part of ``tvrecon``.
+
+Only modules that a run config can name are listed: those that held a ``_target_`` of ``configs/`` (models, callbacks,
+touch policies) when they moved. A module that never held one (the simulator's, the reports', the helpers') is not
+named by any run folder, so its old path is not kept here. Each entry is kept until 2027-06-30 (every run folder of the
+layout it upgrades is then at least six months old; its config can still be edited by hand) and dropped after it.
 """
 
 from __future__ import annotations
@@ -14,56 +19,22 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 __all__ = ["MOVED_MODULES", "upgrade_target", "upgrade_targets"]
 
-# old module -> the module that holds its names now (the layout of tvrecon/sim, utils/, report/, models/components/)
+# old module -> the module that holds its names now; each kept until 2027-06-30
 MOVED_MODULES: dict[str, str] = {
-    "tvrecon.data.generated": "tvrecon.data.generated_dataset",
-    "tvrecon.data.shapes.contact": "tvrecon.data.shapes.sheet",
-    "tvrecon.data.render": "tvrecon.data.views",
+    # models/components/ (the networks apart from the LightningModules)
     "tvrecon.models.backbone": "tvrecon.models.components.backbone",
     "tvrecon.models.classifier": "tvrecon.models.components.classifier",
     "tvrecon.models.contact_cloud": "tvrecon.models.components.contact_cloud",
-    "tvrecon.models.ellipsoid": "tvrecon.models.components.ellipsoid",
     "tvrecon.models.fusion": "tvrecon.models.components.fusion",
     "tvrecon.models.gcn": "tvrecon.models.components.gcn",
-    "tvrecon.models.projection": "tvrecon.models.components.projection",
     "tvrecon.models.reconstructor": "tvrecon.models.components.reconstructor",
-    "tvrecon.models.set_pool": "tvrecon.models.components.set_pool",
     "tvrecon.models.touch_geometry": "tvrecon.models.components.touch_geometry",
     "tvrecon.models.touch_set": "tvrecon.models.components.touch_set",
-    "tvrecon.cls_report": "tvrecon.report.cls_report",
-    "tvrecon.run": "tvrecon.report.run",
-    "tvrecon.seed_summary": "tvrecon.report.seed_summary",
-    "tvrecon.table_format": "tvrecon.report.table_format",
-    "tvrecon.tables": "tvrecon.report.tables",
-    "tvrecon.viz": "tvrecon.report.viz",
-    "tvrecon.sim.colliders": "tvrecon.sim.bodies.colliders",
-    "tvrecon.sim.mesh_distance": "tvrecon.sim.bodies.mesh_distance",
-    "tvrecon.sim.mesh_region": "tvrecon.sim.bodies.mesh_region",
-    "tvrecon.sim.mesh_sign": "tvrecon.sim.bodies.mesh_sign",
-    "tvrecon.sim.voxelize": "tvrecon.sim.bodies.voxelize",
-    "tvrecon.sim.mpm_compiled_grid": "tvrecon.sim.mpm.compiled.grid",
-    "tvrecon.sim.mpm_compiled": "tvrecon.sim.mpm.compiled.kernels",
-    "tvrecon.sim.mpm_scatter": "tvrecon.sim.mpm.compiled.scatter",
-    "tvrecon.sim.mpm_fused": "tvrecon.sim.mpm.compiled.step",
-    "tvrecon.sim.mpm_grid": "tvrecon.sim.mpm.grid",
-    "tvrecon.sim.materials": "tvrecon.sim.mpm.materials",
-    "tvrecon.sim.particle_contact": "tvrecon.sim.mpm.particle_contact",
-    "tvrecon.sim.reference": "tvrecon.sim.mpm.reference",
-    "tvrecon.sim.render": "tvrecon.sim.plots",
-    "tvrecon.sim.press_run": "tvrecon.sim.press.loop",
-    "tvrecon.sim.placement": "tvrecon.sim.press.placement",
-    "tvrecon.sim.stop_rules": "tvrecon.sim.press.stop_rules",
-    "tvrecon.sim.forces": "tvrecon.sim.sensor.forces",
-    "tvrecon.sim.markers": "tvrecon.sim.sensor.markers",
-    "tvrecon.sim.contact": "tvrecon.sim.sensor.patch",
-    "tvrecon.sim.photometric": "tvrecon.sim.sensor.photometric",
-    "tvrecon.sim.sensor_presets": "tvrecon.sim.sensor.presets",
-    "tvrecon.sim.reconstruct": "tvrecon.sim.sensor.surface",
-    "tvrecon.atomic": "tvrecon.utils.atomic",
-    "tvrecon.checkpoint": "tvrecon.utils.checkpoint",
-    "tvrecon.cli_errors": "tvrecon.utils.cli_errors",
-    "tvrecon.config_utils": "tvrecon.utils.config_utils",
-    "tvrecon.geometry": "tvrecon.utils.geometry",
+    # train/ (the callbacks beside the run plumbing) and data/touches/ (the touch policies)
+    "tvrecon.models.bn_recalibrate": "tvrecon.train.bn_recalibrate",
+    "tvrecon.models.grad_norm": "tvrecon.train.grad_norm",
+    "tvrecon.data.touches": "tvrecon.data.touches.policies",
+    "tvrecon.data.touch_sweep": "tvrecon.data.touches.sweep",
 }
 
 

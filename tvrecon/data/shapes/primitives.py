@@ -19,7 +19,7 @@ from scipy.interpolate import PchipInterpolator
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""Compact solid classes: cube, ball, torus, gear, egg, pear, dumbbell, brick, nut, bolt, star, pawn, mushroom."""
+"""Compact solid classes: cube, ball, torus and gear (the paper's example objects torus and gear among them)."""
 
 from __future__ import annotations
 

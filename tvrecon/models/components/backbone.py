@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 from torchvision.models import ResNet18_Weights, resnet18
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["RESNET18_CHANNELS", "ResNet18Backbone", "cached_resnet18_weights_path", "load_resnet18", "widen_conv"]
 

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor, nn
 
 from tvrecon.models.components.backbone import load_resnet18, widen_conv
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["TactileClassifier"]
 

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["EllipsoidTemplate", "mesh_edges", "unpool_faces", "unpool_features", "uv_ellipsoid"]
 

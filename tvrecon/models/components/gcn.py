@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from tvrecon.models.components.ellipsoid import EllipsoidTemplate, unpool_features
 from tvrecon.models.components.projection import camera_to_pixel, pixel_to_grid
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["DeformationBlock", "GResBlock", "GraphConv", "MeshDeformer", "PerceptualPooling", "neighbour_matrix"]
 

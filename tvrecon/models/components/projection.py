@@ -17,7 +17,7 @@ from kornia.geometry.camera.perspective import project_points
 from torch import Tensor
 
 from tvrecon.utils.geometry import world_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "camera_to_pixel",

@@ -16,7 +16,7 @@ from tvrecon.models.components.backbone import ResNet18Backbone
 from tvrecon.models.components.fusion import TactileVisualFusion, TouchPlacement, locate_touches
 from tvrecon.models.components.gcn import MeshDeformer
 from tvrecon.utils.geometry import rotate_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["MODES", "TactileVisualReconstructor", "check_view"]
 

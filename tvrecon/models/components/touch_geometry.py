@@ -31,7 +31,7 @@ from tvrecon.models.components.backbone import ResNet18Backbone
 from tvrecon.models.components.gcn import DeformationBlock, MeshDeformer
 from tvrecon.models.components.reconstructor import check_view
 from tvrecon.utils.geometry import rotate_to_camera, world_to_camera
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "TouchDeformationBlock",

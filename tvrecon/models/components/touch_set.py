@@ -15,7 +15,7 @@ from torch import Tensor, nn
 
 from tvrecon.models.components.backbone import load_resnet18
 from tvrecon.models.components.set_pool import masked_max_mean, real_touches
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["TouchSetClassifier"]
 

@@ -16,7 +16,7 @@ import trimesh
 from torch import Tensor
 
 from tvrecon.sim.bodies.mesh_region import below_first_hit, clip_to_box
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "Collider",
@@ -271,7 +271,7 @@ class MeshCollider:
         at least the least of the 8; one gather of that least value per point (a table of cell minima, built once)
         rules out the points far from the body without interpolating (the particle contact asks every step)."""
         _check_points(points)
-        cmin = self._cell_min(points.device)  # (X', Y', Z')
+        cmin = self.cell_min(points.device)  # (X', Y', Z')
         top = torch.tensor(cmin.shape, device=points.device) - 1
         g = points.float() / self.dx - self.lo_index.to(device=points.device, dtype=torch.float32)
         i0 = torch.minimum(torch.clamp(torch.floor(g), min=0).long(), top)  # _cell's lower corner, in float32
@@ -279,7 +279,7 @@ class MeshCollider:
         # margins: the float32 round-off of the interpolation, and a point float32 puts in a neighbouring cell
         return least - 1e-5 * least.abs() - 1e-3 * self.dx < reach
 
-    def _cell_min(self, device: torch.device) -> Tensor:
+    def cell_min(self, device: torch.device) -> Tensor:
         """(max(X - 1, 1), ...) float32 least node sdf of each trilinear cell (``_cell``'s lower corner), per device."""
         cache = self.__dict__.setdefault("_cell_min_cache", {})
         if device not in cache:

@@ -12,7 +12,7 @@ forward rays first and the backward rays only from the points whose forward ray 
 nodes above the surface (about half of them, their backward rays crossing the object) cost one ray instead of two.
 Every ray is traced on its own (embree's ``rtcIntersect1`` per ray; trimesh's multi-hit loop advances each ray by
 itself: offsets, stuck-ray checks and hit points are per ray), so each hit count, and each answer, is the one
-``mesh.contains`` gets (``tests/sim/test_mesh_sign.py`` checks it on the shapes of the data set).
+``mesh.contains`` gets (``tests/sim/bodies/test_mesh_sign.py`` checks it on the shapes of the data set).
 """
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ class MeshStack:
         self.dx = colliders[0].dx
         self.colliders = tuple(colliders)
         dims = [c.dims for c in colliders]
-        cmins = [c._cell_min(dev) for c in colliders]  # noqa: SLF001 - the collider's own cache, read not written
+        cmins = [c.cell_min(dev) for c in colliders]
         self.dims = torch.tensor(dims, dtype=torch.int64, device=dev)  # (B, 3)
         self.cmin_dims = torch.tensor([tuple(m.shape) for m in cmins], dtype=torch.int64, device=dev)  # (B, 3)
         self.offset = _offsets([d[0] * d[1] * d[2] for d in dims], dev)  # (B,) first row of each table

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from tvrecon.utils.atomic import atomic_write_bytes
 from tvrecon.utils.geometry import check_mesh, perpendicular_basis
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "VoxelGrid",

@@ -16,9 +16,9 @@ state one step of paper eq. 5-11 returns the same motion, round-off aside:
 
 So the step is ``x += dt v`` (G2P's own advection), with zero contact force. The transfers would add float32
 round-off (``C`` of ~1e-9, ``F`` off ``I`` by as much); the readings of a press agree to that round-off
-(``tests/sim/test_free_flight.py``). :class:`FreeFlight` checks the state once (exactly: ``C == 0``, ``F == I``, every
-``v`` equal, the hand moving with it) and trusts the states it made itself after that; free flight ends for good at
-the solver's first real step (after it ``C`` is no longer exactly zero).
+(``tests/sim/mpm/test_free_flight.py``). :class:`FreeFlight` checks the state once (exactly: ``C == 0``, ``F == I``,
+every ``v`` equal, the hand moving with it) and trusts the states it made itself after that; free flight ends for good
+at the solver's first real step (after it ``C`` is no longer exactly zero).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.mpm.small_matmul import matmul3
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = [
     "lame_parameters",
@@ -219,9 +219,9 @@ def polar_decomposition_fixed(
     The loop reads, every iteration, whether to go on (a host sync each, ~1.4 a press step); this one returns that
     answer as a tensor for the caller's own read, so a GPU streams the step. It is also lean in launches (~45 aten ops
     for 4 steps, against ~95 with the loop's step-size test and a per-particle freeze each step;
-    ``tests/sim/test_step_counts.py``): a converged particle stays at its fixed point, so freezing it changes nothing,
-    and once the scaled steps have brought F's singular values near 1 the scaling is ~1 and the plain step converges
-    as fast (quadratically). Where ``converged`` is False (the last step was not below the stop: F far from a
+    ``tests/sim/mpm/test_step_counts.py``): a converged particle stays at its fixed point, so freezing it changes
+    nothing, and once the scaled steps have brought F's singular values near 1 the scaling is ~1 and the plain step
+    converges as fast (quadratically). Where ``converged`` is False (the last step was not below the stop: F far from a
     rotation, singular or not finite) the caller runs :func:`polar_decomposition`, which iterates further or raises.
 
     Args:

@@ -40,10 +40,10 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider, MeshCollider
 from tvrecon.sim.bodies.mesh_stack import MeshStack, stacked_sdf_normal
+from tvrecon.sim.mpm.block_grid import Stencil, bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.compiled.contact import contact_grid_available, fused_contact
 from tvrecon.sim.mpm.compiled.mesh_contact_loop import fused_mesh_contact, mesh_contact_loop_available
 from tvrecon.sim.mpm.contact_reach import speed_reach
-from tvrecon.sim.mpm.grid import Stencil, bspline_weights, stencil_shifts
 from tvrecon.sim.mpm.state import ParticleState
 
 __all__ = [
@@ -229,6 +229,15 @@ class MeshStackCache:
     def set_drift(self, x: Tensor, drift: float) -> None:
         """The host's value of :meth:`drift_of` for positions ``x`` (the next step's)."""
         self._moved = (x, float(drift))
+
+    def snapshot(self) -> tuple[object, object]:
+        """The kept list and its drift as they are now (opaque), for :meth:`restore`: a window of unread steps that
+        runs again from its start (``MLSMPM.mark`` / ``MLSMPM.rewind``) starts from the list it had then."""
+        return self._list, self._moved
+
+    def restore(self, snapshot: tuple[object, object]) -> None:
+        """Back to the kept list and drift of a :meth:`snapshot`."""
+        self._list, self._moved = snapshot  # type: ignore[assignment]
 
 
 def _near_stacked(
@@ -490,7 +499,7 @@ def contact_setup(
     """What :func:`contact_passes` needs of the K particles ``cand``, after ``gv``: their (27 K,) stencil nodes, (27,
     K, 1) weights, (27 K, 1) shares ``w_ip dt / m_i``, (K, 1) masses, (K, 1) alpha and (K, 3) hand velocity (None
     without ``alpha``). lin: (P,) base node; w_cand: (27, K) weights of the candidates; shifts: the (27,) stencil
-    offsets (:func:`tvrecon.sim.mpm.grid.stencil_shifts`); node_mass: (N,) grid mass; mass, alpha: (P,);
+    offsets (:func:`tvrecon.sim.mpm.block_grid.stencil_shifts`); node_mass: (N,) grid mass; mass, alpha: (P,);
     hand_velocity: (3,), (1, 3) or (P, 3) or None."""
     K = cand.shape[0]
     idx = lin[cand][None, :] + shifts[:, None]  # (27, K): stencil_nodes of the candidates

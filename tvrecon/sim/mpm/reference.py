@@ -2,7 +2,7 @@
 
 Read it next to :class:`tvrecon.sim.mpm.solver.MLSMPM`: the same P2G (paper eq. 5-6), grid velocity and colliders (eq.
 7) and G2P (eq. 8-11), written as directly as possible (``docs/simulator-contract.md`` states the contract). The tests
-compare the two (``tests/sim/test_mpm.py``, ``tests/sim/test_reference_particle_contact.py``) and
+compare the two (``tests/sim/mpm/test_mpm.py``, ``tests/sim/mpm/test_reference_particle_contact.py``) and
 ``benchmarks/bench_sim.py`` times them.
 
 Dense ``n_grid^3`` grid, a python loop over the 27 stencil offsets with one ``index_add_`` per quantity,

@@ -6,8 +6,8 @@ per particle. One step is :meth:`MLSMPM._p2g` (eq. 5-6), :meth:`MLSMPM._grid_upd
 :meth:`MLSMPM._g2p` (eq. 8-11). :class:`tvrecon.sim.mpm.reference.ReferenceMPM` is the same step written naively (dense
 grid, a loop over the 27 offsets, SVD): read it first; the tests hold the two equal to round-off.
 
-Layout (:mod:`tvrecon.sim.mpm.grid`): the grid is a block per scene aligned to the global lattice and covering only
-the bounding box of that scene's particles (cost follows the particles, not ``n_grid^3``); mass and momentum are
+Layout (:mod:`tvrecon.sim.mpm.block_grid`): the grid is a block per scene aligned to the global lattice and covering
+only the bounding box of that scene's particles (cost follows the particles, not ``n_grid^3``); mass and momentum are
 scattered in one fused ``(N, 4)`` ``index_add_``; the 27-node sums are small matrix products against the precomputed
 offsets; the polar decomposition is an analytic Newton iteration (``materials.polar_decomposition``). With no input
 requiring grad the step runs under ``torch.no_grad``; otherwise the same code is differentiated by autograd.
@@ -24,12 +24,7 @@ from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider
 from tvrecon.sim.bodies.grid_contact import collide_grid
-from tvrecon.sim.mpm.compiled.backend import CompiledKernels, CompileFailed, compiled_kernels
-from tvrecon.sim.mpm.compiled.grid import ColliderFields
-from tvrecon.sim.mpm.compiled.policy import mark_compile_cache_warm
-from tvrecon.sim.mpm.compiled.step import fused_step, particle_force
-from tvrecon.sim.mpm.free_flight import FreeFlight
-from tvrecon.sim.mpm.grid import (
+from tvrecon.sim.mpm.block_grid import (
     Stencil,
     Transfer,
     block_index,
@@ -43,6 +38,11 @@ from tvrecon.sim.mpm.grid import (
     shift_nodes,
     stencil_offsets,
 )
+from tvrecon.sim.mpm.compiled.backend import CompiledKernels, CompileFailed, compiled_kernels
+from tvrecon.sim.mpm.compiled.grid import ColliderFields
+from tvrecon.sim.mpm.compiled.policy import mark_compile_cache_warm
+from tvrecon.sim.mpm.compiled.step import fused_step, particle_force
+from tvrecon.sim.mpm.free_flight import FreeFlight
 from tvrecon.sim.mpm.materials import (
     fixed_corotated_kirchhoff,
     lame_parameters,
@@ -100,7 +100,8 @@ class MLSMPM:
 
     #: particles per cache-sized block of the stencil passes (no-grad steps on the CPU); 0 = off
     chunk_size: int = 4096
-    #: P2G's scatter in the node-major layout (:func:`~tvrecon.sim.mpm.grid.node_major_scatter`): None = on CUDA only
+    #: P2G's scatter in the node-major layout (:func:`~tvrecon.sim.mpm.block_grid.node_major_scatter`): None = on CUDA
+    #: only
     node_major_p2g: bool | None = None
     #: cells beyond the particle contact's reach kept in its candidate list, reused while no particle has moved this far
     #: (``MeshStackCache``; only when the caller reads ``pending_drift``, as the press loop does); 0 = search every
@@ -409,14 +410,14 @@ class MLSMPM:
     def mark(self) -> WindowMark:
         """The solver's own state now (the next step's planned layout, the contact's kept list)."""
         plan, ms = self._next_layout, self._mesh_stack
-        return WindowMark(plan, None if plan is None else plan.D, plan is not None and plan.padded, ms._list, ms._moved)
+        return WindowMark(plan, None if plan is None else plan.D, plan is not None and plan.padded, *ms.snapshot())
 
     def rewind(self, mark: WindowMark) -> None:
         """Back to :meth:`mark`'s state: the next step is the one that followed it."""
         if mark.layout is not None:
             mark.layout.D, mark.layout.padded = mark.layout_dims, mark.layout_padded
         self._next_layout = mark.layout
-        self._mesh_stack._list, self._mesh_stack._moved = mark.contact_list, mark.contact_moved  # type: ignore[assignment]
+        self._mesh_stack.restore((mark.contact_list, mark.contact_moved))
 
     def force_source(self) -> tuple[Transfer | None, Tensor | None]:
         """What :meth:`last_particle_force` reads of the last step (references), to share that step's force out
@@ -632,7 +633,7 @@ class MLSMPM:
         return share_node_force(transfer, mass, o_int)
 
     def _speed_check(self, vmax: Tensor | None) -> None:
-        """The grid speed check of a step (:func:`~tvrecon.sim.mpm.grid.check_grid_speed`) on ``vmax``, the 0-dim
+        """The grid speed check of a step (:func:`~tvrecon.sim.mpm.block_grid.check_grid_speed`) on ``vmax``, the 0-dim
         largest node velocity component (None: no node). With ``defer_checks`` the value is kept in
         ``pending_grid_speed`` for the caller's own host read (:meth:`check_pending`), a host sync fewer a step."""
         if self.defer_checks:

@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.mpm.materials import p_wave_speed
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["CONTACT_MODES", "MPMConfig", "ParticleState", "cfl_dt"]
 

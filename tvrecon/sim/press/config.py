@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from tvrecon.sim.mpm.compiled.policy import AUTO, check_compile_setting
 from tvrecon.sim.mpm.state import CONTACT_MODES
-from tvrecon.sim.sensor.pad import _scalar
+from tvrecon.sim.sensor.elastic_pad import _scalar
 from tvrecon.utils.config_utils import NOT_IN_KEY, OMIT_IF_DEFAULT, check_number, check_whole
 
 __all__ = ["DEFAULT_THRESHOLD", "MAX_COLLIDER_REFINE", "TERMINAL_MEASURES", "PressConfig"]
@@ -95,7 +95,7 @@ class PressConfig:
     ``contact``, ``threshold_grid`` and ``terminal`` were added after data was cached; at their defaults they stay out
     of the data cache key (``config_utils.OMIT_IF_DEFAULT``) and other values (``"grid"``, None, ``"displacement"``)
     enter it. Flipping the ``contact`` and ``threshold_grid`` defaults changed every default touch, so the data cache
-    version was bumped with it (``tvrecon.data.cache.CACHE_VERSION``).
+    version was bumped with it (``tvrecon.data.cache.store.CACHE_VERSION``).
     """
 
     n_grid: int = 128

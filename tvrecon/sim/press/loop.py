@@ -40,8 +40,8 @@ from tvrecon.sim.press.stop_rules import (
     stop_rules,
     terminal_chamfer,
 )
+from tvrecon.sim.sensor.elastic_pad import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice
 from tvrecon.sim.sensor.forces import column_force_field
-from tvrecon.sim.sensor.pad import SensorConfig, _scalar, alpha_profile, mass_scale, pad_lattice
 
 #: the press's steps before the pad meets the object are translations (``MLSMPM.free_flight``, :mod:`tvrecon.sim.mpm.
 #: free_flight`: the pad starts at zero stress, moving with the hand, ``gap`` cells away); False: every step is a full

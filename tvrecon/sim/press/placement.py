@@ -22,9 +22,9 @@ from torch import Tensor
 
 from tvrecon.sim.bodies import colliders as _colliders
 from tvrecon.sim.press.config import PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig, pad_lattice, sensor_frame
+from tvrecon.sim.sensor.elastic_pad import SensorConfig, pad_lattice, sensor_frame
 from tvrecon.utils.geometry import check_mesh, perpendicular_basis
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 #: Cells beyond the pad's thickness and start gap in front of the touch point where the footprint rays start: the
 #: space the pad needs free in front of the surface (shared by :func:`place_touch` and :func:`pad_footprint`).

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from torch import Tensor
 
 from tvrecon.sim.press.config import PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.sim.sensor.patch import ContactPatch, contact_patch
 
 __all__ = ["TactileReading", "reading_patch"]

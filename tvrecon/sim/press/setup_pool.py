@@ -6,7 +6,7 @@ measured at 59% of a batch-64 press of the paper scene on an H100 with 16 thread
 ``benchmarks/README.md``): threads share one interpreter, and much of the set-up holds the GIL. Spawned processes
 (one interpreter each, one torch thread) place the touches side by side on the CPU; the main process moves each
 collider's tables to the simulator's device. The placements are those of the thread path bit for bit: the same
-CPU code on the same arrays, the tables copied as they are (``tests/sim/test_setup_threads.py``).
+CPU code on the same arrays, the tables copied as they are (``tests/sim/press/test_setup_threads.py``).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from torch import Tensor
 
 from tvrecon.sim.press import placement
 from tvrecon.sim.press.config import PressConfig
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 __all__ = ["SetupPool"]
 

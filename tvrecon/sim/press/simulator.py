@@ -1,8 +1,8 @@
 """The EIP press protocol (paper Algorithm 1): place a sensor pad against a mesh and press until a stop rule.
 
 Coordinates. For every touch the simulation domain ``[0, 1)^3`` (``n_grid`` cells spanning ``domain_size`` world
-units) is attached to the *sensor frame* (see :func:`tvrecon.sim.sensor.pad.sensor_frame`): domain x, y follow the
-contact plane and domain -z is the press direction, so the pad is aligned with the grid whatever the world
+units) is attached to the *sensor frame* (see :func:`tvrecon.sim.sensor.elastic_pad.sensor_frame`): domain x, y follow
+the contact plane and domain -z is the press direction, so the pad is aligned with the grid whatever the world
 direction. The domain point (0.5, 0.5, 0.5 + dx / 2) is the *touch point*: laterally the given ``position``, along the
 press axis the highest point of the object under the pad's footprint (found by ray casting), so the pad starts
 ``gap`` cells in front of the first point it will touch. World <-> domain::
@@ -44,13 +44,13 @@ from tvrecon.sim.press.loop import PressLoop
 from tvrecon.sim.press.reading import TactileReading
 from tvrecon.sim.press.setup_pool import SetupPool
 from tvrecon.sim.press.stop_rules import travel_for_depth
-from tvrecon.sim.sensor.pad import SensorConfig, _scalar
+from tvrecon.sim.sensor.elastic_pad import SensorConfig, _scalar
 from tvrecon.utils.config_utils import (
     check_instance,
     check_known_keys,
     field_names,
 )
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["EIPSimulator"]
 
@@ -199,7 +199,7 @@ class EIPSimulator:
         starts clear of the object however much the surface rises under it. When every ray misses (e.g. the hole
         of a torus), the footprint moves so that its most central particle is over the hit nearest the centre line
         among rays cast over the whole bounding box (:func:`tvrecon.sim.press.placement.touch_position`). (The data
-        pipeline samples its own touches, see ``tvrecon.data.touches``.)
+        pipeline samples its own touches, see ``tvrecon.data.touches.policies``.)
 
         Args:
             mesh: object in world coordinates. direction: (3,) world press direction (into the object).

@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["column_force_field", "normal_shear", "field_total"]
 
@@ -36,7 +36,7 @@ def column_force_field(particle_force: Tensor, resolution: tuple[int, int], laye
 
     Args:
         particle_force: (..., P, 3) per-particle force in the sensor frame, pad order (layers, H, W) with
-            P = layers * H * W (``tvrecon.sim.sensor.pad.pad_lattice``).
+            P = layers * H * W (``tvrecon.sim.sensor.elastic_pad.pad_lattice``).
         resolution: (H, W) of the contact layer. layers: particles through the thickness.
     Returns:
         (..., H, W, 3) force per taxel, same dtype and device; sums to the particles' total.

@@ -2,10 +2,10 @@
 
 Optical tactile sensors (GelSight, DIGIT, ...) print a grid of markers on the gel and track them: the dots move with
 the contact layer's in-plane displacement (shear). Here the markers sit on the rest contact layer at taxel
-coordinates (x = column j, y = row i, the layout of :func:`tvrecon.sim.sensor.pad.pad_lattice`), follow the tactile
-image's displacement (bilinear between taxels), and are projected onto the camera behind the pad: the camera looks
-along -z from the hand side with x right and y up (the orientation of ``tactile.png``), orthographic by default or a
-pinhole ``camera_distance`` cells behind the contact layer (then a dot pushed towards the camera also moves away
+coordinates (x = column j, y = row i, the layout of :func:`tvrecon.sim.sensor.elastic_pad.pad_lattice`), follow the
+tactile image's displacement (bilinear between taxels), and are projected onto the camera behind the pad: the camera
+looks along -z from the hand side with x right and y up (the orientation of ``tactile.png``), orthographic by default or
+a pinhole ``camera_distance`` cells behind the contact layer (then a dot pushed towards the camera also moves away
 from the image centre). Dots are drawn as soft discs.
 
 Every function takes leading batch dimensions on the image or positions and works on any device.
@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["marker_grid", "marker_positions", "marker_displacements", "render_markers"]
 

@@ -6,8 +6,8 @@ the rest contact layer moved with the hand. Contact-layer particle ``(i, j)`` at
 
     world_ij = position + R(direction) @ (lattice_ij + image_ij) * dx * domain_size
 
-with ``R`` the sensor frame (:func:`tvrecon.sim.sensor.pad.sensor_frame`, rebuilt from the stored direction),
-``lattice_ij`` the pad's rest contact layer in cells (:func:`tvrecon.sim.sensor.pad.pad_lattice`) and
+with ``R`` the sensor frame (:func:`tvrecon.sim.sensor.elastic_pad.sensor_frame`, rebuilt from the stored direction),
+``lattice_ij`` the pad's rest contact layer in cells (:func:`tvrecon.sim.sensor.elastic_pad.pad_lattice`) and
 ``dx = 1 / n_grid``. Nothing else is needed, so the patch is derived from what the data cache stores (image,
 position, direction) without simulating again.
 
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from tvrecon.sim.sensor.pad import SensorConfig, pad_lattice, sensor_frame
-from tvrecon.utils.shapes import check_shape
+from tvrecon.sim.sensor.elastic_pad import SensorConfig, pad_lattice, sensor_frame
+from tvrecon.utils.shape_check import check_shape
 
 __all__ = ["ContactPatch", "contact_patch"]
 

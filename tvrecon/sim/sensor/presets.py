@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tvrecon.sim.sensor.pad import SensorConfig
+from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
 __all__ = [
     "DEFAULT_FILL",
@@ -35,6 +35,7 @@ __all__ = [
     "STRESS_UNIT_KPA",
     "SensorPreset",
     "pad_fits",
+    "preset_field",
     "press_overrides",
     "sensor_config",
     "speed_fraction_for",
@@ -196,6 +197,23 @@ def _preset(name: str) -> SensorPreset:
 def sensor_config(name: str, n_grid: int = 128, fill: float = DEFAULT_FILL, spacing: float = 0.5) -> SensorConfig:
     """:class:`SensorConfig` of preset ``name`` on an ``n_grid`` grid (see :meth:`SensorPreset.sensor_config`)."""
     return _preset(name).sensor_config(n_grid, fill=fill, spacing=spacing)
+
+
+#: the fields of a preset's pad that its Hydra block ``configs/data/sensor/<name>.yaml`` reads with
+#: ``${sensor_preset:<name>,<field>}`` (the rest of the block comes from ``configs/data/sensor/gel.yaml``)
+PRESET_FIELDS = ("resolution", "layers", "E", "nu")
+
+
+def preset_field(name: str, field: str, n_grid: int = 128) -> int | float | list[int]:
+    """One field of preset ``name``'s pad at ``n_grid``, as a config holds it (``resolution`` a list [H, W]).
+
+    The Hydra blocks of the sensor presets read their numbers here (the resolver ``sensor_preset`` that
+    :mod:`tvrecon` registers), so the specs above are their one source.
+    """
+    if field not in PRESET_FIELDS:
+        raise ValueError(f"sensor preset field must be one of {PRESET_FIELDS}, got {field!r}")
+    value = getattr(sensor_config(name, int(n_grid)), field)
+    return list(value) if isinstance(value, tuple) else value
 
 
 def press_overrides(name: str, n_grid: int = 128, fill: float = DEFAULT_FILL) -> dict[str, float]:

@@ -12,7 +12,7 @@ from scipy.ndimage import gaussian_filter
 from skimage.measure import marching_cubes
 from torch import Tensor
 
-from tvrecon.utils.shapes import check_shape
+from tvrecon.utils.shape_check import check_shape
 
 
 def pad_surface(points: Tensor | np.ndarray, spacing: float, level: float = 0.5, upsample: int = 2) -> trimesh.Trimesh:

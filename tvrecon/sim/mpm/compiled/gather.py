@@ -3,9 +3,9 @@ each particle's 27 node velocities from the ``(N, 3)`` grid, as 9 runs of 3 neig
 particle (paper eq. 8-11): APIC velocity and affine matrix, the hand's blend, position and deformation gradient.
 
 It is :func:`tvrecon.sim.mpm.compiled.kernels.g2p_update`'s arithmetic with the B-spline weights computed from ``fx``
-(:func:`tvrecon.sim.mpm.grid.bspline_weights`), the same terms summed in another order and fused into FMAs, so equal
-to the inductor kernel to float32 round-off. Inductor's loop of that function gathers with scalar indirect loads and
-recomputes the weights per channel. The particles go in tiles of 256: the node sums one particle at a time, then the
+(:func:`tvrecon.sim.mpm.block_grid.bspline_weights`), the same terms summed in another order and fused into FMAs, so
+equal to the inductor kernel to float32 round-off. Inductor's loop of that function gathers with scalar indirect loads
+and recomputes the weights per channel. The particles go in tiles of 256: the node sums one particle at a time, then the
 particle update (C, v, x, F: a third of the loop's time when it was done per particle) 8 particles at a time on the
 channel-first arrays (a paper step's gather 1.8x faster, ``benchmarks/bench_cpp_loops.py``).
 

@@ -8,7 +8,7 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
 
 - :func:`stencil_base`: ``base``, ``fx`` and each scene's bounds of ``base`` (:func:`stencil_weights` adds the 27
   quadratic B-spline weights; the kernels below compute them from ``fx`` where they use them,
-  :func:`tvrecon.sim.mpm.grid.bspline_weights`);
+  :func:`tvrecon.sim.mpm.block_grid.bspline_weights`);
 - :func:`block_index`: each particle's base node on the block grid (``grid.block_layout``'s ``lin``);
 - :func:`polar_fixed`: the scaled Newton polar decomposition of :func:`tvrecon.sim.mpm.materials.polar_decomposition`,
   a fixed number of iterations with a per-particle stop (a particle keeps the iterate at which its step fell below
@@ -27,7 +27,7 @@ only when its loads and stores are contiguous along the particles (``(P, 3, 3)``
 
 Only the no-grad step uses them (the press and data generation); a step that needs autograd runs the eager code.
 The results equal the eager step to float32 round-off (fused arithmetic and a per-particle instead of a
-per-batch Newton stop); ``tests/sim/test_mpm_compile.py`` checks it.
+per-batch Newton stop); ``tests/sim/mpm/test_mpm_compile.py`` checks it.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from tvrecon.sim.mpm.grid import bspline_weights
+from tvrecon.sim.mpm.block_grid import bspline_weights
 from tvrecon.sim.mpm.materials import POLAR_FIXED_ITERS
 
 __all__ = [
@@ -87,7 +87,7 @@ def _mm(A: list[Tensor], B: list[Tensor], bt: bool = False) -> list[Tensor]:
 def stencil_weights(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """From positions xt (3, P) of B scenes of P / B contiguous particles each: ``base_f = floor(x/dx - 0.5)``
     (3, P), ``fx = x/dx - base_f`` (3, P), w (27, P) and the per-scene bounds of base_f, lo_f and hi_f (3, B) (for
-    :func:`tvrecon.sim.mpm.grid.block_dims`; exact, as min and max are)."""
+    :func:`tvrecon.sim.mpm.block_grid.block_dims`; exact, as min and max are)."""
     base_f, fx, lo_f, hi_f = stencil_base(xt, inv_dx, B)
     return base_f, fx, torch.stack(bspline_weights(fx), 0), lo_f, hi_f
 
@@ -104,8 +104,9 @@ def stencil_base(xt: Tensor, inv_dx: float, B: int = 1) -> tuple[Tensor, Tensor,
 
 
 def block_index(base_f: Tensor, lo: Tensor, dims: Tensor) -> Tensor:
-    """Linear block-grid index (P,) int64 of each particle's base node, as :func:`tvrecon.sim.mpm.grid.block_layout`
-    numbers them (scene-major, then i, j, k; integer arithmetic, so the same values).
+    """Linear block-grid index (P,) int64 of each particle's base node, as
+    :func:`tvrecon.sim.mpm.block_grid.block_layout` numbers them (scene-major, then i, j, k; integer arithmetic, so the
+    same values).
 
     base_f: (3, P) base nodes (float, whole numbers) of B scenes of P / B contiguous particles; lo: (3, B) int64 block
     origins; dims: (3,) int64 ``[D1, D2, D0 D1 D2]`` (a tensor, so that a new block size does not recompile)."""
@@ -160,7 +161,7 @@ def p2g_contrib(
     particle).
 
     Channel-first whole-step inputs: Ft, Rt, Ct (9, P), vt, fx (3, P), m, vol (P,); the weights come from fx
-    (:func:`~tvrecon.sim.mpm.grid.bspline_weights`). The chunk is sliced
+    (:func:`~tvrecon.sim.mpm.block_grid.bspline_weights`). The chunk is sliced
     here, inside the compiled code, so that each chunk's call passes the same tensors (with slices as arguments, the
     guards and wrappers of a call cost ~40 us more per chunk in a microbenchmark).
     ``A = m C - (4 dt V0 / dx^2) tau`` with the fixed-corotated Kirchhoff stress
@@ -229,7 +230,7 @@ def g2p_update(
     ``(N, 3)`` grid viewed with strides (3, 1), no copy: a particle's 27 nodes are 9 such runs); offs: (9,) int64
     node-axis offset of each run (``i S0 + j S1``); lin: (P,) base node of each particle. One index per run instead of
     one per node. Channel-first: fx, xt (3, P) (the weights come from fx,
-    :func:`~tvrecon.sim.mpm.grid.bspline_weights`), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v
+    :func:`~tvrecon.sim.mpm.block_grid.bspline_weights`), Ft (9, P), hvt (3, P) or (3, 1) hand velocity. Returns x, v
     (3, P), C, F (9, P).
     """
     w = bspline_weights(fx)
@@ -260,10 +261,10 @@ def g2p_update(
 
 
 def share_force(pm: Tensor, offs: Tensor, lin: Tensor, fx: Tensor, mass: Tensor) -> Tensor:
-    """``f_p = m_p sum_o w_o (f / m)(base + o)`` (:func:`tvrecon.sim.mpm.grid.share_node_force`, another summation
+    """``f_p = m_p sum_o w_o (f / m)(base + o)`` (:func:`tvrecon.sim.mpm.block_grid.share_node_force`, another summation
     order): pm (N - 2, 9) runs of the per-mass node forces ``f_i / m_i`` (as ``gv`` of :func:`g2p_update`), offs (9,),
-    lin (P,), fx (3, P) (the weights, :func:`~tvrecon.sim.mpm.grid.bspline_weights`), mass (P,). Returns the (P, 3)
-    particle forces."""
+    lin (P,), fx (3, P) (the weights, :func:`~tvrecon.sim.mpm.block_grid.bspline_weights`), mass (P,). Returns the
+    (P, 3) particle forces."""
     w = bspline_weights(fx)
     g = pm[lin[None, :] + offs[:, None]]  # (9, P, 9)
     acc = [sum(w[o] * g[o // 3, :, 3 * (o % 3) + c] for o in range(27)) for c in range(3)]

@@ -13,10 +13,10 @@ call between them and without a host sync of the tensor library.
 
 The arithmetic is that of ``near_blocks``, ``stacked_sdf_normal`` (float64 cell coordinates, float32 weights, the
 corners summed pairwise as ``corner_sum``), ``contact_setup`` and ``contact_passes``, term by term, so the readings
-equal the kernels' to float32 round-off (``tests/sim/test_mesh_contact_loop.py``). Candidates come in particle order,
-as ``torch.nonzero`` gives them. Built once per process with inductor's C++ toolchain (:class:`.cpp_loop.CppLoop`);
-used only for float32 CPU tensors on one torch thread with the press's contiguous scenes; anything else, or a failed
-build, keeps the kernels.
+equal the kernels' to float32 round-off (``tests/sim/mpm/test_mesh_contact_loop.py``). Candidates come in particle
+order, as ``torch.nonzero`` gives them. Built once per process with inductor's C++ toolchain
+(:class:`.cpp_loop.CppLoop`); used only for float32 CPU tensors on one torch thread with the press's contiguous scenes;
+anything else, or a failed build, keeps the kernels.
 """
 
 from __future__ import annotations

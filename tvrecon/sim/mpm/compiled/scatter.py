@@ -30,7 +30,7 @@ __all__ = ["SOURCE", "fused_p2g", "p2g_grid_available"]
 #: the C++ source, in tiles of 256 particles: phase 1, 8 particles at a time (8-float vectors over the channel-first
 #: arrays; the tile's last < 8 one by one, the same code on floats), computes per particle the 13 numbers
 #: q = [m, then per axis a: mv0_a, dx A_a0, dx A_a1, dx A_a2] into a (13, 256) tile; phase 2 adds
-#: ``w_o [m, mv0 + dx A o]`` (w_o from fx, :func:`tvrecon.sim.mpm.grid.bspline_weights`) for the 27 offsets
+#: ``w_o [m, mv0 + dx A o]`` (w_o from fx, :func:`tvrecon.sim.mpm.block_grid.bspline_weights`) for the 27 offsets
 #: o = (i, j, k) to node ``lin + i S0 + j S1 + k`` of the (N, 4) grid, per run (i, j) the nodes k = 0, 1 as one
 #: 8-float vector and k = 2 as a 4-float one (GCC / Clang vector extension: another compiler fails the build, and the
 #: row path stays). The arithmetic is ``compiled.kernels.p2g_contrib``'s, term by term in its order, with products

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor
 
 from tvrecon.sim.bodies.colliders import Collider
+from tvrecon.sim.mpm.block_grid import Stencil, Transfer, block_dims, block_layout, share_node_force
 from tvrecon.sim.mpm.compiled.backend import CompiledKernels
 from tvrecon.sim.mpm.compiled.gather import fused_g2p, g2p_grid_available
 from tvrecon.sim.mpm.compiled.grid import ColliderFields
@@ -36,7 +37,6 @@ from tvrecon.sim.mpm.compiled.kernels import NEWTON_ITERS
 from tvrecon.sim.mpm.compiled.polar import fused_polar, polar_grid_available
 from tvrecon.sim.mpm.compiled.scatter import fused_p2g, p2g_grid_available
 from tvrecon.sim.mpm.compiled.stencil import fused_block_index, fused_stencil_base, stencil_loops_available
-from tvrecon.sim.mpm.grid import Stencil, Transfer, block_dims, block_layout, share_node_force
 from tvrecon.sim.mpm.materials import polar_decomposition
 from tvrecon.sim.mpm.particle_contact import MeshStackCache, particle_contact_grid
 from tvrecon.sim.mpm.state import MPMConfig, ParticleState
@@ -85,7 +85,7 @@ def _grid_update(
 ) -> tuple[Tensor, Tensor, Transfer, Tensor]:
     """Node sums, grid velocity and colliders in one compiled kernel (``grid_collide``), as ``MLSMPM._grid_update``.
     Returns the (N, 3) node velocities, the (B, 3) collider force, the step's transfer and the 0-dim largest node
-    velocity component (the solver checks it, :func:`~tvrecon.sim.mpm.grid.check_grid_speed`)."""
+    velocity component (the solver checks it, :func:`~tvrecon.sim.mpm.block_grid.check_grid_speed`)."""
     D = st.D
     dx = 1.0 / cfg.n_grid
     sdf, nrm = fields(colliders, st.lo, D, dx, G.dtype, G.device)
@@ -257,7 +257,7 @@ def _particle_contact(
 
 
 def particle_force(kernels: CompiledKernels, transfer: Transfer, mass: Tensor, o_int: Tensor) -> Tensor:
-    """``MLSMPM.last_particle_force`` of a compiled solver: :func:`tvrecon.sim.mpm.grid.share_node_force` as one
+    """``MLSMPM.last_particle_force`` of a compiled solver: :func:`tvrecon.sim.mpm.block_grid.share_node_force` as one
     compiled gather of the per-mass node forces (``compiled.kernels.share_force``; the same terms summed in another
     order, without the eager ``(27, P, 3)`` gathered copy). mass: (P,). Returns (P, 3), detached."""
     lin, w, gm, node_force, (S0, S1), fx = transfer
