@@ -98,3 +98,36 @@ def test_a_thread_that_ends_does_not_end_the_worker(tmp_path: Path) -> None:
     )
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert "child survived" in done.stdout and "exit 0" in done.stdout, done.stderr[-2000:]
+
+
+LOKY_JOB = textwrap.dedent(
+    """
+    import multiprocessing as mp, sys
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+    from joblib.externals.loky.backend import context  # registers 'loky' as a start method, as a loky worker has
+    from tvrecon.utils.process_lifetime import spawnable_start_method
+
+    if __name__ == "__main__":
+        mp.set_start_method("loky", force=True)  # what a joblib launcher's job runs under
+        with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+            if sys.argv[1] == "guarded":
+                with spawnable_start_method():
+                    fut = pool.submit(abs, -3)
+            else:
+                fut = pool.submit(abs, -3)
+            try:
+                print(fut.result(timeout=60))
+            except BrokenProcessPool:
+                print("broken")
+        print(mp.get_start_method())
+    """
+)
+
+
+@pytest.mark.parametrize(("mode", "answer"), [("guarded", "3"), ("bare", "broken")])
+def test_a_pool_spawns_inside_a_joblib_job(tmp_path: Path, mode: str, answer: str) -> None:
+    script = tmp_path / "job.py"
+    script.write_text(LOKY_JOB)
+    done = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120)
+    assert done.stdout.split() == [answer, "loky"], done.stderr[-2000:]  # the job's start method is restored

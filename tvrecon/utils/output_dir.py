@@ -7,10 +7,11 @@ with the first's. This module imports nothing of tvrecon (bottom layer).
 
 from __future__ import annotations
 
+import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["OUTPUTS", "announce", "default_output_dir", "output_dir"]
+__all__ = ["OUTPUTS", "announce", "check_writable_dir", "default_output_dir", "output_dir"]
 
 #: the folder, under the current one, that holds every tool's runs without --out (ignored by git)
 OUTPUTS = Path("outputs")
@@ -37,3 +38,26 @@ def announce(out: str | Path) -> str:
     line = f"outputs in {Path(out).resolve()}"
     print(line, flush=True)
     return line
+
+
+def check_writable_dir(path: str | Path, what: str) -> Path:
+    """Create folder ``path`` and check that a file can be written in it, before any work is done for it.
+
+    Raises:
+        ValueError: naming ``what`` (e.g. ``export=``) and the path: it is a file, lies under a file, or cannot be
+            written (permissions, a read-only file system, a full quota).
+    """
+    folder = Path(path).expanduser()
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{what}{folder} is a file: give a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):  # the real test: permissions, read-only file systems, quotas
+            pass
+    except (FileExistsError, NotADirectoryError) as err:
+        raise ValueError(f"{what}{folder} cannot be a folder: a part of its path is a file ({err})") from err
+    except OSError as err:
+        raise ValueError(
+            f"{what}{folder} is not writable ({err.strerror or err}): choose a folder you can write to"
+        ) from err
+    return folder

@@ -9,20 +9,24 @@ the OOM killer) runs no code: its spawned workers are reparented and go on gener
 The kernel sends that signal when the *thread* that started the worker ends, which need not be the whole parent (a
 pool started from a thread that returns): the handler exits only when the worker was reparented, i.e. the parent
 process is gone, so SIGUSR1 is asked for rather than SIGTERM (whose default action would end a worker whose parent
-lives on). The module imports nothing of tvrecon (bottom layer).
+lives on). :func:`spawnable_start_method` lets a pool spawn its workers from inside a joblib launcher's job. The
+module imports nothing of tvrecon (bottom layer).
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import multiprocessing as mp
 import os
 import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
-__all__ = ["PR_SET_PDEATHSIG", "die_with_parent"]
+__all__ = ["PR_SET_PDEATHSIG", "die_with_parent", "spawnable_start_method"]
 
 #: the prctl option of <linux/prctl.h>: the signal the calling process gets when its parent dies
 PR_SET_PDEATHSIG = 1
@@ -75,3 +79,23 @@ def die_with_parent(parent_pid: int, interval_s: float = WATCH_INTERVAL_S) -> st
     if how == "watchdog":
         threading.Thread(target=_watch_parent, args=(parent_pid, interval_s), daemon=True, name="parent-watch").start()
     return how
+
+
+@contextmanager
+def spawnable_start_method() -> Iterator[None]:
+    """While the block spawns processes, a default start method the spawned children can set up.
+
+    A spawned child first sets the parent's *default* start method (``multiprocessing.get_start_method()``), even
+    when the pool uses its own context. Inside a joblib (loky) launcher job that method is ``'loky'``, which a fresh
+    child does not know: every worker of a pool started there died with "cannot find context for 'loky'". Such a
+    method is replaced by ``'spawn'`` for the block and restored after it.
+    """
+    method = mp.get_start_method(allow_none=True)
+    if method is None or method in mp.get_all_start_methods():
+        yield
+        return
+    mp.set_start_method("spawn", force=True)
+    try:
+        yield
+    finally:
+        mp.set_start_method(method, force=True)
