@@ -17,8 +17,8 @@ import torch
 from conftest import ROOT, compose_config
 from omegaconf import OmegaConf, open_dict
 
-from tvrecon.train.warm_start import FreezeParameters
 from tvrecon.report.table_format import fmt
+from tvrecon.train.warm_start import FreezeParameters
 from tvrecon.utils.run_options import check_run_options
 
 
