@@ -18,7 +18,9 @@ samples) changed every key and no value. ``touch.start: outside`` (each paper to
 leaves the object, so a cube pressed at 45 degrees is no longer rejected and re-drawn off the sweep) was added to every
 preset on ``touch/paper_sweep``; it enters the policy's cache key, so those presets' keys changed and the cone
 presets' did not. ``patch_min_push`` / ``patch_min_push_fraction`` (the contact patches' load-time contact test, issue
-24) were added to every entry of the first fixture; no cache key changed.
+24) were added to every entry of the first fixture; no cache key changed. The touch policies moved into
+``tvrecon.data.touches``: every ``touch._target_`` of the first fixture follows them, and no cache key changed
+(``TouchPolicy.key_target``).
 
 ``fixtures/data_cache_keys.json`` pins the cache key of the first item of each split of each preset: a change there
 means every cached sample of that preset is regenerated, which must be a deliberate ``CACHE_VERSION`` bump (update

@@ -22,11 +22,15 @@ ROBOT = ROOT / "tvrecon" / "robot"
 ENGINES = {"pybullet": ("pybullet", "pybullet_data"), "mujoco": ("mujoco",)}
 
 
+def _run_without(hidden: tuple[str, ...], code: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter in which the packages ``hidden`` cannot be imported."""
+    code = "import sys\n" + "".join(f"sys.modules[{h!r}] = None\n" for h in hidden) + code
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+
+
 def _import_without(hidden: tuple[str, ...], modules: list[str]) -> subprocess.CompletedProcess:
-    code = "import sys\n" + "".join(f"sys.modules[{h!r}] = None\n" for h in hidden)
-    code += "".join(f"import {m}\n" for m in modules)
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "disable")}
-    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    return _run_without(hidden, "".join(f"import {m}\n" for m in modules))
 
 
 def test_robot_core_imports_no_engine() -> None:
@@ -44,6 +48,45 @@ def test_mujoco_room_without_pybullet() -> None:
 def test_pybullet_room_without_mujoco() -> None:
     result = _import_without(ENGINES["mujoco"], ["tvrecon.robot", "tvrecon.robot.pybullet.pick_place"])
     assert result.returncode == 0, result.stderr
+
+
+_MUJOCO_RUN = """
+from tvrecon.robot.mujoco.pick_place import run_mujoco_pick_place
+from tvrecon.robot.mujoco.pick_place_config import MujocoPickPlaceConfig
+from tvrecon.robot.pad_config import PadConfig
+
+res = run_mujoco_pick_place(MujocoPickPlaceConfig(
+    object="cube", out_dir=sys.argv[1], pad=PadConfig(resolution=(12, 12), layers=3, n_grid=40),
+    render_size=(96, 72), lift_height=0.06, place_xy=(0.5, 0.0), write_gif=False, write_mp4=False, progress=False,
+))
+assert res.success, res.message
+"""
+
+_PYBULLET_RUN = """
+from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pybullet.pick_place import run_pick_place
+from tvrecon.robot.pybullet.pick_place_config import PickPlaceConfig
+
+res = run_pick_place(PickPlaceConfig(
+    object="can", out_dir=sys.argv[1], render=False, progress=False, frame_every=12,
+    pad=PadConfig(resolution=(24, 24), layers=3),
+))
+assert res.success, res.message
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason="needs the mujoco extra")
+def test_mujoco_pick_place_runs_without_pybullet(tmp_path: Path) -> None:
+    result = _run_without(ENGINES["pybullet"], _MUJOCO_RUN.replace("sys.argv[1]", repr(str(tmp_path))))
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("pybullet") is None, reason="needs the robot extra")
+def test_pybullet_pick_place_runs_without_mujoco(tmp_path: Path) -> None:
+    result = _run_without(ENGINES["mujoco"], _PYBULLET_RUN.replace("sys.argv[1]", repr(str(tmp_path))))
+    assert result.returncode == 0, result.stderr[-2000:]
 
 
 def _engine_imports(path: Path) -> set[str]:
