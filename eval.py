@@ -43,6 +43,7 @@ from tvrecon.train.run_control import (  # noqa: E402
 )
 from tvrecon.utils.checkpoint import CorruptCheckpointError, load_run  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
+from tvrecon.utils.run_options import check_run_options  # noqa: E402
 
 log = logging.getLogger("eval")
 
@@ -179,6 +180,8 @@ def fused_members(cfg: DictConfig, target: str, ckpt: Path) -> list[TrainedClass
         raise ValueError(f"cls_fuse fuses classifiers, but {ckpt} holds {target}: drop cls_fuse for it")
     members = []
     for path in paths:
+        if not path.exists():
+            raise FileNotFoundError(f"cls_fuse=[{path}]: no such run folder or checkpoint; {TRAIN_HINT}")
         found = find_checkpoints(str(path), None) if path.is_file() else find_checkpoints(None, str(path), cfg.prefer)
         if len(found) != 1:
             raise ValueError(f"cls_fuse: {path} holds {len(found)} runs; name one run folder or checkpoint each")
@@ -241,7 +244,11 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
     datamodule.setup("fit")
     torch.manual_seed(int(cfg.seed))  # the training touch counts drawn, and the loader's shuffle
     before = batchnorm_statistics(model)
-    layers = recalibrate_module(model, datamodule.train_dataloader(), k, masks[touches])
+    loader = datamodule.train_dataloader()
+    used = min(k, len(loader))  # the split may hold fewer batches than asked for: metrics.json records those used
+    if used < k:
+        log.warning("bn_recalibrate_batches=%d: the training split holds %d batches; all %d are used", k, used, used)
+    layers = recalibrate_module(model, loader, used, masks[touches])
     after = batchnorm_statistics(model)
     shift = statistics_shift(before, after)
     worst = worst_layers(before, after)
@@ -250,7 +257,8 @@ def recalibrate_statistics(model: L.LightningModule, datamodule: L.LightningData
             "BatchNorm statistics of %s (%d layers) recomputed: the stored ones put the data's mean up to %.2f "
             "stored std off and its spread up to %.2fx off", group, g["layers"], g["mean_shift"], g["std_ratio"],
         )  # fmt: skip
-    return {"batches": k, "touches": touches, "layers": layers, "shift": shift, "worst_layers": worst}
+    asked = {"batches_requested": k} if used < k else {}
+    return {"batches": used, **asked, "touches": touches, "layers": layers, "shift": shift, "worst_layers": worst}
 
 
 def eval_split(cfg: DictConfig) -> str:
@@ -278,6 +286,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     ``"skipped"``); a single ``ckpt_path`` that cannot be read raises
     :class:`~tvrecon.utils.checkpoint.CorruptCheckpointError` naming the file.
     """
+    check_run_options(cfg)  # seed, torch_threads, trainer counts: errors name the key and the value
     if cfg.get("torch_threads"):
         torch.set_num_threads(int(cfg.torch_threads))
     ckpts = find_checkpoints(cfg.get("ckpt_path"), cfg.get("run_dir"), str(cfg.get("prefer", "best")))

@@ -41,8 +41,9 @@ from tvrecon.train.run_control import (  # noqa: E402
 from tvrecon.train.warm_start import FreezeParameters, load_initial_weights  # noqa: E402
 from tvrecon.utils.checkpoint import check_checkpoint  # noqa: E402
 from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
+from tvrecon.utils.run_options import check_run_options  # noqa: E402
 
-__all__ = ["check_training_length", "instantiate_callbacks", "instantiate_loggers", "main", "train"]
+__all__ = ["check_freeze", "check_training_length", "instantiate_callbacks", "instantiate_loggers", "main", "train"]
 
 log = logging.getLogger("train")
 
@@ -80,7 +81,8 @@ def check_training_length(cfg: DictConfig) -> None:
     the experiment's name; it is refused unless ``ckpt_path`` gives the weights (then only a warning: the checkpoint
     is tested as it is). ``max_epochs=-1`` is Lightning's "train forever": refused unless ``trainer.max_steps`` or
     ``trainer.max_time`` bounds the run, since without them no test or table ever comes.
-    ``+trainer.limit_train_batches=0`` trains on no batch: refused like ``max_epochs=0``.
+    ``+trainer.limit_train_batches=0``, ``+trainer.max_steps=0`` and ``+trainer.max_time=00:00:00:00`` train on no
+    batch: refused like ``max_epochs=0``.
 
     Raises:
         ValueError: naming the setting and what to pass instead.
@@ -95,6 +97,16 @@ def check_training_length(cfg: DictConfig) -> None:
             f"untrained model as this experiment's result. Give a number of batches (+trainer.limit_train_batches=N, "
             f"N >= 1) or a fraction in (0, 1], or drop it to train on every batch"
         )
+    max_steps = trainer.get("max_steps")
+    if max_steps is not None and int(max_steps) == 0 and cfg.get("ckpt_path") is None:
+        raise ValueError(
+            "trainer.max_steps=0 trains nothing: the test and the tables would report the untrained model as this "
+            "experiment's result. Give a number of steps (+trainer.max_steps=N, N >= 1; -1 = no limit), or test a "
+            "trained checkpoint with `python eval.py ckpt_path=<run>/checkpoints/last.ckpt`"
+        )
+    max_time = trainer.get("max_time")
+    if isinstance(max_time, str) and all(p.strip().isdigit() and int(p) == 0 for p in max_time.split(":")):
+        raise ValueError(f"trainer.max_time={max_time} trains nothing: give a duration DD:HH:MM:SS above 0")
     if trainer.get("max_epochs") is None:
         return
     max_epochs = int(trainer.max_epochs)
@@ -120,6 +132,22 @@ def check_training_length(cfg: DictConfig) -> None:
         raise ValueError(f"trainer.max_epochs={max_epochs} is not a number of epochs: use N >= 1 (or -1 with a bound)")
 
 
+def check_freeze(cfg: DictConfig) -> None:
+    """Refuse ``freeze=[...]`` without weights to keep: with neither ``init_from`` nor ``ckpt_path`` the frozen
+    modules would stay at their random initialisation for the whole run, and its tables would report a model whose
+    (say) image encoder never learnt anything.
+
+    Raises:
+        ValueError: naming the frozen modules and what to pass.
+    """
+    freeze = list(cfg.get("freeze") or [])
+    if freeze and cfg.get("init_from") is None and cfg.get("ckpt_path") is None:
+        raise ValueError(
+            f"freeze={freeze} without init_from keeps randomly initialised modules fixed for the whole run: give the "
+            f"weights to keep with init_from=<run>/checkpoints/last.ckpt, or drop freeze"
+        )
+
+
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit then test the model described by ``cfg`` (the composed ``configs/train.yaml``).
 
@@ -127,7 +155,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ``{"metrics": {name: float}, "result": test result dict | None, "tables": str, "output_dir": str,
         "best_ckpt": str | None}``.
     """
+    check_run_options(cfg)  # seed, torch_threads, trainer counts, lr: errors name the key and the value
     check_training_length(cfg)
+    check_freeze(cfg)
     ckpt_path = cfg.get("ckpt_path")
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise FileNotFoundError(

@@ -67,5 +67,5 @@ def test_cli_writes_png(tmp_path, capsys) -> None:
 
 
 def test_cli_rejects_unknown_shape(tmp_path) -> None:
-    with pytest.raises(ValueError, match="unknown shape"):
+    with pytest.raises(ValueError, match="is neither an object class nor an existing mesh file"):
         main(["--out", str(tmp_path / "x.png"), "--shape", "no-such-shape"])

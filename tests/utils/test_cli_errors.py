@@ -136,7 +136,8 @@ def test_preview_and_tables_are_one_line(tmp_path: Path, capsys) -> None:
     from tvrecon.report.tables import main as tables
 
     assert call_cli(preview, ["--out", str(tmp_path / "p.png"), "--shape", "nope"], prog="preview") == 2
-    assert "unknown shape" in _one_error_line(capsys.readouterr().err, "preview")
+    line = _one_error_line(capsys.readouterr().err, "preview")
+    assert "is neither an object class nor an existing mesh file" in line
     (tmp_path / "run").mkdir()
     result = {"task": "reconstruction", "name": "visual_only", "modality": "visual"}
     result["modes"] = {"visual": {"chamfer": 13.5, "count": 4, "per_class": {}}}

@@ -27,7 +27,7 @@ import trimesh
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from tvrecon.data.cache.store import SampleCache
+from tvrecon.data.cache.store import SampleCache, cache_key
 from tvrecon.data.shapes import ObjectLibrary
 from tvrecon.data.touches.policies import (
     Touches,
@@ -381,11 +381,25 @@ class GeneratedDataset(Dataset):
         if self._memory is not None and index in self._memory:
             return dict(self._memory[index]), True
         arrays, hit = self.cache.get_or_create(self.spec(index), lambda: self._generate_single_thread(index))
+        self._check_finite_tactile(index, arrays)
         if "label" in arrays:
             arrays["label"] = np.asarray(self.label_of(index), dtype=np.int64)
         if self._memory is not None:
             self._memory[index] = dict(arrays)
         return arrays, hit
+
+    def _check_finite_tactile(self, index: int, arrays: Mapping[str, np.ndarray]) -> None:
+        """Refuse an entry whose tactile images hold NaN or inf, naming its cache file: a NaN loss many steps later
+        named no entry, and the only way out was deleting the whole cache."""
+        tactile = arrays.get("tactile")
+        if tactile is None or bool(np.isfinite(tactile).all()):
+            return
+        name, instance = self.object_of(index)
+        where = self.cache.path(cache_key(self.spec(index))) if self.cache.enabled else "(not cached)"
+        raise ValueError(
+            f"the tactile images of split {self.split!r} item {index} ({name}, instance {instance}) hold NaN or inf: "
+            f"cache entry {where}. Delete that file (the next read simulates the item again), not the whole cache"
+        )
 
     def _generate_single_thread(self, index: int) -> dict[str, np.ndarray]:
         """:meth:`generate` with one torch thread: float reductions then do not depend on the process's thread

@@ -61,6 +61,7 @@ from tvrecon.data.generation.args import OPTION_KEYS, parse_shard, parse_splits
 from tvrecon.data.generation.pool import GenerateStats, combined, pregenerate_splits, shard_indices
 from tvrecon.data.touches.report import contact_report
 from tvrecon.sim.mpm.compiled.policy import AUTO
+from tvrecon.utils.output_dir import check_writable_dir
 
 __all__ = ["main"]
 
@@ -147,6 +148,8 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
         workers = int(opts["workers"]) if opts.get("workers") else None
     except ValueError:
         raise ValueError(f"workers must be a whole number of processes, got {opts['workers']!r}") from None
+    if opts.get("export"):  # refused before minutes of simulation, not after them
+        check_writable_dir(opts["export"], "export=")
     cfg = compose_preset(opts.get("preset", "small"), overrides)
     dm = instantiate(cfg, _convert_="all")
     shard = parse_shard(opts.get("shard", "0/1"))
@@ -176,7 +179,8 @@ def _run(opts: dict[str, str], overrides: list[str]) -> list[GenerateStats]:
             ex = export_entries(ds, opts["export"], indices=shard_indices(len(ds), shard))
             print(
                 f"[{label}] exported to {Path(opts['export']).expanduser().resolve()}: {ex.copied} entries copied "
-                f"({ex.bytes_copied / 2**20:.2f} MiB), {ex.present} already there, {ex.missing} not cached",
+                f"({ex.bytes_copied / 2**20:.2f} MiB; {ex.replaced} of them over a differing copy), {ex.present} "
+                f"already there (the same bytes), {ex.missing} not cached",
                 flush=True,
             )
     if together:

@@ -1,6 +1,6 @@
 """Preview one reconstruction sample as a PNG: the view, its tactile images and the touches drawn on the view.
 
-    python -m tvrecon.data.preview --out preview.png [--shape mug --touches 6 --seed 0 --pad 32]
+    python -m tvrecon.data.preview [--out preview.png --shape mug --touches 6 --seed 0 --pad 32]
 
 The object comes from the procedural library (`make_shape`), the camera and touches from the same seeded
 policies as the datasets (`sample_camera`, `sample_touches(visible_only=True)`), the tactile images from the EIP
@@ -27,7 +27,8 @@ from matplotlib.figure import Figure  # noqa: E402
 from tvrecon.data.touches.policies import ConeTouchPolicy, sample_touches, simulate_touches  # noqa: E402
 from tvrecon.data.views import Camera, project_points, render_view, sample_camera  # noqa: E402
 from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
-from tvrecon.utils.shape_check import check_shape
+from tvrecon.utils.output_dir import announce, output_dir  # noqa: E402
+from tvrecon.utils.shape_check import check_shape  # noqa: E402
 
 __all__ = ["make_preview", "draw_preview", "save_figure_atomic", "main"]
 
@@ -173,7 +174,7 @@ def make_preview(
 
     Args:
         out: PNG path (written atomically).
-        shape: object class of the procedural library.
+        shape: object class of the procedural library, or a mesh file.
         touches: number of touches T.
         seed: seeds the object instance, camera, colours, and touches.
         image_size: view side in pixels.
@@ -186,16 +187,17 @@ def make_preview(
     Returns:
         the written path.
     """
-    from tvrecon.data.shapes import available_classes, make_shape
+    from tvrecon.data.shapes.shape_arg import shape_or_mesh_file
     from tvrecon.sim.press.config import PressConfig
     from tvrecon.sim.press.simulator import EIPSimulator
     from tvrecon.sim.sensor.elastic_pad import SensorConfig
 
-    if shape not in available_classes():
-        raise ValueError(f"unknown shape {shape!r}; available: {', '.join(available_classes())}")
     if int(touches) < 1:
         raise ValueError(f"touches must be >= 1, got {touches}")
-    mesh = make_shape(shape, seed=seed)
+    mesh, note = shape_or_mesh_file(shape, seed=seed, what="shape")  # any object class or a mesh file
+    if note:
+        print(note, flush=True)
+    shape = Path(shape).name if Path(shape).suffix else shape  # the title names a file by its name
     camera = sample_camera(seed, image_size=image_size, fov_deg=fov_deg)
     view = render_view(mesh, camera, seed=seed)
     policy = ConeTouchPolicy(cone_deg=cone_deg, visible_only=True)
@@ -225,8 +227,8 @@ def make_preview(
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (see the module docstring)."""
     p = argparse.ArgumentParser(prog="python -m tvrecon.data.preview", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", required=True, help="PNG file to write")
-    p.add_argument("--shape", default="mug", help="object class (default: mug)")
+    p.add_argument("--out", default=None, help="PNG file to write (default outputs/preview/<time>/preview.png)")
+    p.add_argument("--shape", default="mug", help="an object class of the library (default: mug) or a mesh file")
     p.add_argument("--touches", type=int, default=6, help="number of touches (default: 6)")
     p.add_argument("--seed", type=int, default=0, help="seed of object instance, view and touches (default: 0)")
     p.add_argument("--image-size", type=int, default=224, help="view side in pixels (default: 224)")
@@ -236,8 +238,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fov", type=float, default=45.0, help="camera field of view, degrees (default: 45)")
     p.add_argument("--device", default="cpu", help="torch device of the simulation")
     a = p.parse_args(argv)
-    path = make_preview(a.out, a.shape, a.touches, a.seed, a.image_size, a.pad, a.n_grid, a.cone, a.fov, a.device)
-    print(f"wrote {path}")
+    out = a.out if a.out else output_dir(None, "preview") / "preview.png"
+    path = make_preview(out, a.shape, a.touches, a.seed, a.image_size, a.pad, a.n_grid, a.cone, a.fov, a.device)
+    print(f"wrote {path.name}")
+    announce(path.parent)
     return 0
 
 

@@ -125,8 +125,12 @@ def mean_std(values: Sequence[float]) -> tuple[float, float]:
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+    """``value`` with ``digits`` decimals; ``-`` for None (a mode not evaluated), ``nan`` for NaN (a run that
+    diverged: evaluated, and its result is no number)."""
+    if value is None:
         return "-"
+    if isinstance(value, float) and math.isnan(value):
+        return "nan"
     return f"{value:.{digits}f}"
 
 

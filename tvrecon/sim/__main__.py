@@ -1,6 +1,10 @@
 """Command line: one EIP press with pictures.
 
     python -m tvrecon.sim press --shape torus --direction 0 0 -1 --out outputs/sim_demo
+    python -m tvrecon.sim press --shape mug          # any object class of the library, or a mesh file
+
+Without ``--out`` the files go to ``outputs/sim_press/<time>/``; the folder is printed at the end. A press into a
+folder that holds an earlier press replaces that press's files.
 
 Writes ``tactile.png`` (normal displacement + shear arrows), ``reading.npz`` (every field of the reading),
 ``pad_step*.ply`` (pad particles, world coordinates, a few steps), ``deformation.png`` (the press over time) and,
@@ -32,14 +36,18 @@ from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.sim.sensor.presets import SENSOR_PRESETS
 from tvrecon.utils.atomic import atomic_write_bytes
 from tvrecon.utils.cli_errors import call_cli
-from tvrecon.utils.geometry import read_mesh_file
+from tvrecon.utils.output_dir import OUTPUTS, announce, output_dir
 
 SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 PROG = "python -m tvrecon.sim"
+#: the folder name of this CLI's runs under outputs/ when --out is not given
+TOOL = "sim_press"
+#: the files of a press in its --out folder (pad_step*.ply besides): an earlier press's are replaced, not mixed in
+PRESS_FILES = ("tactile.png", "reading.npz", "deformation.png", "pad_surface.ply", "force.png", "markers.png",
+               "rgb.png", "outputs.png")  # fmt: skip
 #: --compile values -> EIPSimulator(compile=...)
 COMPILE_CHOICES = {"auto": "auto", "true": True, "false": False}
 
-BUILTIN_SHAPES = ("torus", "gear", "sphere", "cube")
 SENSOR_OUTPUTS = ("force", "markers", "rgb")
 #: The press defaults the ``--contact`` and ``--threshold-grid`` flags follow.
 PRESS_DEFAULTS = PressConfig()
@@ -57,39 +65,16 @@ def threshold_grid_arg(text: str) -> int | None:
 
 
 def load_shape(name: str, seed: int = 0) -> trimesh.Trimesh:
-    """A built-in shape (from the object library ``tvrecon.data.shapes``) or a mesh file (.obj, .ply, .stl, ...).
+    """An object class of the library (any of the 35; ``sphere`` = ``ball``) or a mesh file (.obj, .ply, .stl, ...).
 
-    Mesh files are centred at their bounding-box centre and scaled to a largest extent of 1, like the library.
+    Mesh files are centred at their bounding-box centre and scaled to a largest extent of 1, like the library
+    (:func:`tvrecon.data.shapes.shape_arg.shape_or_mesh_file`, the one meaning of ``--shape``).
     """
-    if name in BUILTIN_SHAPES:
-        from tvrecon.data.shapes import available_classes, make_shape  # entry point: may use any layer
+    from tvrecon.data.shapes.shape_arg import shape_or_mesh_file  # entry point: may use any layer
 
-        lib_name = {"sphere": "ball"}.get(name, name)
-        if lib_name in available_classes():
-            return make_shape(lib_name, seed=seed)
-        if name == "sphere":
-            return trimesh.creation.icosphere(subdivisions=4, radius=0.5)
-        raise ValueError(f"shape {name!r} is not in the object library (have: {available_classes()})")
-    path = Path(name)
-    if not path.is_file():
-        raise ValueError(f"--shape must be one of {BUILTIN_SHAPES} or an existing mesh file, got {name!r}")
-    mesh = read_mesh_file(path, what="--shape file")  # the one mesh loader: unreadable, NaN, no triangles
-    extent = float(np.ptp(mesh.bounds, axis=0).max())
-    if not extent > 0 or not float(mesh.area) > 0:
-        raise ValueError(
-            f"{path} has zero size (every triangle is degenerate, largest extent {extent:.3g}): its coordinates were "
-            f"probably scaled or rounded to nothing (e.g. a 1e-9 scale written with a few decimals); export it in "
-            f"its original units"
-        )
-    centre = mesh.bounds.mean(0)
-    mesh.apply_translation(-centre)
-    mesh.apply_scale(1.0 / extent)
-    if abs(extent - 1.0) > 1e-6 or np.abs(centre).max() > 1e-6:  # --position is in the rescaled units: say so
-        print(
-            f"{path.name}: centred at {np.round(centre, 6).tolist()} and scaled by 1/{extent:.6g} to a largest extent "
-            f"of 1; --position is in these units (a point p of the file is (p - centre) / {extent:.6g})",
-            flush=True,
-        )
+    mesh, note = shape_or_mesh_file(name, seed=seed, what="--shape", positions="--position")
+    if note:  # --position is in the rescaled units: say so
+        print(note, flush=True)
     return mesh
 
 
@@ -130,16 +115,9 @@ def check_outputs(args: argparse.Namespace) -> Path:
             f"--marker-spacing, --marker-radius and --height-gain must be > 0, got {args.marker_spacing}, "
             f"{args.marker_radius} and {args.height_gain}"
         )
-    out = Path(args.out)
+    out = output_dir(args.out, TOOL)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file: give a folder (it will hold tactile.png, reading.npz, ...)")
-    if (out / "reading.npz").is_file():  # a second press into one folder: its files would mix with the first's
-        print(
-            f"warning: --out {out} already holds a press (reading.npz): its files are overwritten, and pad_step*.ply "
-            f"files of the earlier press may remain beside the new ones; give a new folder to keep them apart",
-            file=sys.stderr,
-            flush=True,
-        )
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):  # the real test: permissions, read-only file systems, quotas
@@ -156,6 +134,7 @@ def check_outputs(args: argparse.Namespace) -> Path:
 def run_press(args: argparse.Namespace) -> dict[str, Path]:
     """Run one press from parsed CLI arguments and write its files; returns {name: path}."""
     out = check_outputs(args)
+    earlier = (out / "reading.npz").is_file()  # a second press into one folder: the first's files are replaced
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     mesh = load_shape(args.shape, seed=args.seed)
@@ -225,8 +204,12 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
         f"max normal={float(reading.image[2].max()):.3f} cells chamfer={reading.chamfer:.4g} "
         f"force={[round(v, 4) for v in reading.force.tolist()]}"
     )
-    for name, path in files.items():
-        print(f"wrote {name}: {path}")
+    if earlier:
+        replaced = remove_earlier_press(out, set(files.values()))
+        print(f"--out {out} held an earlier press: its files are replaced ({replaced} of them removed)", flush=True)
+    for path in files.values():
+        print(f"wrote {path.name}")
+    announce(out)
     if reading.criterion_missed:
         asked = "--depth" if args.depth is not None else "--force" if args.force is not None else "the threshold"
         msg = (
@@ -237,6 +220,19 @@ def run_press(args: argparse.Namespace) -> dict[str, Path]:
             raise StopNotReached(f"{msg}; the files above are written (--strict makes this an error)")
         print(f"warning: {msg}; add --strict to make this an error", file=sys.stderr, flush=True)
     return files
+
+
+def remove_earlier_press(out: Path, keep: set[Path]) -> int:
+    """Remove the files of an earlier press in ``out`` that this press did not write (its ``pad_step*.ply`` of other
+    steps, an image this press does not draw); returns how many."""
+    keep = {Path(p).resolve() for p in keep}
+    stale = [*out.glob("pad_step*.ply"), *(out / name for name in PRESS_FILES)]
+    removed = 0
+    for path in stale:
+        if path.is_file() and path.resolve() not in keep:
+            path.unlink()
+            removed += 1
+    return removed
 
 
 class StopNotReached(RuntimeError):
@@ -316,13 +312,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("press", help="press the sensor pad onto a shape and write pictures")
-    p.add_argument("--shape", default="torus", help=f"one of {BUILTIN_SHAPES} or a mesh file path")
+    p.add_argument("--shape", default="torus", help="an object class of the library (default torus) or a mesh file")
     p.add_argument("--seed", type=int, default=0, help="instance seed of a library shape")
     p.add_argument("--direction", type=float, nargs=3, default=[0.0, 0.0, -1.0], help="press direction (into object)")
     p.add_argument(
         "--position", type=float, nargs=3, default=None, help="touch point (default: the first surface the pad meets)"
     )
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", default=None, help=f"output folder (default {OUTPUTS}/{TOOL}/<time>)")
     p.add_argument(
         "--sensor",
         choices=SENSOR_PRESET_NAMES,

@@ -134,6 +134,11 @@ class FreezeParameters(BaseFinetuning):
         fixed = sum(p.numel() for m in self._frozen for p in m.parameters())
         total = sum(p.numel() for p in pl_module.parameters())
         log.info("freeze=%s: %d of %d parameters fixed", self.prefixes, fixed, total)
+        if not any(p.requires_grad for p in pl_module.parameters()):
+            raise ValueError(
+                f"freeze={self.prefixes} fixes all {total} parameters of the model: nothing would train. Freeze a "
+                f"part of it (e.g. freeze=[net.visual]), or test the weights as they are with eval.py"
+            )
 
     def finetune_function(self, pl_module: L.LightningModule, epoch: int, optimizer: object) -> None:
         """Nothing is unfrozen."""

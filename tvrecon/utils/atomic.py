@@ -8,13 +8,55 @@ from __future__ import annotations
 
 import io
 import os
+import re
+import socket
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["default_file_mode", "atomic_open", "atomic_write_bytes", "atomic_write_text", "atomic_savefig"]
+__all__ = [
+    "atomic_open",
+    "atomic_savefig",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "default_file_mode",
+    "tmp_prefix",
+    "tmp_writer_gone",
+]
+
+#: ``~<host>~<pid>~`` in a temporary file's name: which process writes it (:func:`tmp_writer_gone`)
+_WRITER = re.compile(r"~([A-Za-z0-9_.-]+)~(\d+)~")
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname()) or "host"
+
+
+def tmp_prefix(name: str) -> str:
+    """The prefix of a temporary file written for ``name``: ``.<name>.~<host>~<pid>~``, so that a cleanup can tell
+    the file of a killed writer (:func:`tmp_writer_gone`) from one being written now."""
+    return f".{name}.~{_host()}~{os.getpid()}~"
+
+
+def tmp_writer_gone(name: str) -> bool:
+    """True when the temporary file ``name`` (made with :func:`tmp_prefix`) was written by a process of this host that
+    no longer runs (killed mid-write: the file is stale whatever its age). False when the writer may still run, runs
+    on another host, or the name does not say (then only its age can tell)."""
+    found = _WRITER.search(name)
+    if found is None or found.group(1) != _host():
+        return False
+    pid = int(found.group(2))
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # e.g. EPERM: a process of another user runs with that pid
+        return False
+    return False
 
 
 def default_file_mode() -> int:
@@ -37,7 +79,7 @@ def atomic_open(path: str | Path, mode: str = "wb", fsync: bool = False) -> Iter
         raise ValueError(f"atomic_open writes whole files: mode must be 'wb' or 'w', got {mode!r}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=tmp_prefix(path.name), suffix=".tmp")
     try:
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
             yield fh

@@ -7,7 +7,8 @@ through this module:
 - the project's own input checks (``ValueError``, ``TypeError``, a missing file, a Hydra/OmegaConf config error)
   end as ``<prog>: error: <message>`` on ONE line of stderr, exit status 2 (bad input);
 - any other exception (a run that failed: a dead worker, a NaN loss, a full disk) ends the same way with the
-  exception's type named and a pointer to ``--debug``, exit status 1;
+  exception's type named and a pointer to ``--debug``, exit status 1; a command that resumes adds that the same
+  command goes on from what was finished;
 - Ctrl-C ends with ``<prog>: interrupted; rerun the same command to resume`` (or ``<prog>: interrupted`` where the
   command cannot resume), exit status 130 = 128 + SIGINT;
 - ``--debug`` on the command line, or ``HYDRA_FULL_ERROR=1`` in the environment, keeps the full traceback.
@@ -32,6 +33,7 @@ __all__ = [
     "EXIT_FAILED",
     "EXIT_INTERRUPTED",
     "EXIT_USAGE",
+    "FAILED_RESUME_HINT",
     "RESUME_HINT",
     "call_cli",
     "cli_errors",
@@ -47,6 +49,8 @@ EXIT_FAILED = 1  # the run started and failed
 EXIT_USAGE = 2  # bad input (argparse's code too)
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 RESUME_HINT = "interrupted; rerun the same command to resume"
+#: the end of a failed run's line (exit 1) in a command that resumes: what it finished is kept
+FAILED_RESUME_HINT = "the work finished before the failure is kept: the same command resumes from it"
 DEBUG_FLAG = "--debug"
 DEBUG_HINT = f"rerun with {DEBUG_FLAG} (or HYDRA_FULL_ERROR=1) for the traceback"
 
@@ -144,7 +148,7 @@ def cli_errors(prog: str, resume: bool = False, debug: bool | None = None) -> It
 
     Args:
         prog: the command as the user typed it (``python -m tvrecon.sim``), the prefix of the line.
-        resume: the command resumes when rerun (Ctrl-C then says so).
+        resume: the command resumes when rerun (Ctrl-C and a failed run then say so).
         debug: re-raise with the traceback instead (default: :func:`debug_requested`).
     Raises:
         SystemExit: with 2 (bad input), 1 (failed run) or 130 (Ctrl-C); ``SystemExit`` of the body passes through.
@@ -163,7 +167,10 @@ def cli_errors(prog: str, resume: bool = False, debug: bool | None = None) -> It
     except Exception as err:
         if debug:
             raise
-        print(f"{prog}: error: {_message(err)}", file=sys.stderr, flush=True)
+        text = _message(err)
+        if resume and exit_code(err) == EXIT_FAILED and "same command" not in text:
+            text += f"; {FAILED_RESUME_HINT}"  # a run that failed part-way (a killed job, a full disk) goes on
+        print(f"{prog}: error: {text}", file=sys.stderr, flush=True)
         raise _CliExit(exit_code(err)) from None
 
 

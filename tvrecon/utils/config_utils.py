@@ -9,6 +9,7 @@ on no other part of ``tvrecon``.
 from __future__ import annotations
 
 import dataclasses
+import types
 import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
@@ -19,6 +20,7 @@ __all__ = [
     "NOT_IN_KEY",
     "OMIT_IF_DEFAULT",
     "check_instance",
+    "check_fixed_tuple",
     "check_known_keys",
     "check_number",
     "check_whole",
@@ -104,11 +106,38 @@ def coerce_config(cls: type[C], value: C | Mapping[str, Any] | None, what: str |
     hints = typing.get_type_hints(cls)
     for k, v in kwargs.items():
         hint = hints.get(k)
+        check_fixed_tuple(v, hint, k, what)
         if hint is float and isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_):
             kwargs[k] = float(v)
         elif isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(v, Mapping):
             kwargs[k] = coerce_config(hint, v, k)
     return cls(**kwargs)
+
+
+def check_fixed_tuple(value: Any, hint: Any, name: str, what: str) -> None:
+    """Refuse a value of a fixed-length tuple field (``place_xy: tuple[float, float]``) with another length, or with a
+    non-number where numbers are expected; a variable-length tuple, another type or None (where allowed) passes.
+
+    Before, ``place_xy=[0.5]`` ran a whole robot episode and ended in ``IndexError: tuple index out of range``.
+
+    Raises:
+        ValueError / TypeError: naming the field ``name`` (of the config ``what``) and the value given.
+    """
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        if value is None:
+            return
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if len(args) != 1:
+            return
+        hint = args[0]
+    parts = typing.get_args(hint)
+    if typing.get_origin(hint) is not tuple or not parts or Ellipsis in parts or not isinstance(value, tuple):
+        return
+    if len(value) != len(parts):
+        raise ValueError(f"{name} must hold {len(parts)} values ({what} config), got {len(value)}: {list(value)}")
+    for part, item in zip(parts, value, strict=True):
+        if part in (int, float):
+            check_number(item, f"{name} ({what} config) {list(value)}: each value")
 
 
 def check_whole(value: Any, name: str, minimum: int | None = None) -> int:

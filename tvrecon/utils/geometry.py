@@ -58,7 +58,10 @@ def read_mesh_file(path: str | Path, what: str = "mesh file") -> trimesh.Trimesh
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{what} {str(path)!r} does not exist: pass the path of an existing mesh file")
-    no_triangles = f"{what} {str(path)!r} holds no triangles: pass a triangle mesh (obj, stl, ply, glb, off)"
+    no_triangles = (
+        f"{what} {str(path)!r} is not a mesh, or is truncated: no triangle could be read from its "
+        f"{path.stat().st_size} bytes; pass a complete triangle mesh file (obj, stl, ply, glb, off)"
+    )
     raw = _load(path, what, process=False)
     if not isinstance(raw, trimesh.Trimesh) or len(raw.faces) == 0:
         raise ValueError(no_triangles)
@@ -77,8 +80,8 @@ def _load(path: Path, what: str, process: bool) -> trimesh.Trimesh | trimesh.Sce
         return trimesh.load(path, force="mesh", process=process)
     except Exception as err:  # trimesh's readers fail in many ways (e.g. an ImportError of an optional decoder)
         raise ValueError(
-            f"{what} {str(path)!r} is not a readable mesh ({type(err).__name__}: {err}): is it a valid mesh file "
-            f"(.obj, .stl, .ply, .glb, .off)? Re-export it from a mesh tool"
+            f"{what} {str(path)!r} is not a mesh, or is truncated (the reader failed: {type(err).__name__}: {err}); "
+            f"pass a complete mesh file (.obj, .stl, .ply, .glb, .off), e.g. re-exported from a mesh tool"
         ) from err
 
 

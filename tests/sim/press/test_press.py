@@ -157,7 +157,7 @@ def test_reachable_miss_returns_no_contact(sim: EIPSimulator) -> None:
         (dict(direction=[0.0, 0.0, 0.0]), "non-zero"),
         (dict(direction=[float("nan"), 0.0, -1.0]), "finite"),
         (dict(position=[0.0, 0.0, 5.0]), "world units from the object"),
-        (dict(position=[0.0, 0.0]), r"\(T, 3\)"),
+        (dict(position=[0.0, 0.0]), r"position must have shape \(3,\), got \(2,\)"),
     ],
 )
 def test_bad_press_arguments(sim: EIPSimulator, kwargs: dict, match: str) -> None:

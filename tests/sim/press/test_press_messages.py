@@ -43,7 +43,7 @@ def test_a_mesh_in_mm_says_how_it_was_rescaled_and_a_second_press_into_one_out_w
     assert "cube_mm.stl: centred at [100.0, 0.0, 25.0] and scaled by 1/50 to a largest extent of 1" in out.out
     assert "--position is in these units" in out.out and "warning" not in out.err
     assert main(args) == 0
-    assert "already holds a press (reading.npz)" in capsys.readouterr().err
+    assert "held an earlier press: its files are replaced" in capsys.readouterr().out
 
 
 def test_an_object_many_domains_across_warns_about_its_units() -> None:

@@ -10,6 +10,8 @@ half-written entry; an entry already there with the same size is left as it is.
 
 from __future__ import annotations
 
+import filecmp
+import logging
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,14 +20,18 @@ from typing import Any
 from tvrecon.data.cache.store import SampleCache, cache_key
 from tvrecon.utils.atomic import atomic_open
 
+log = logging.getLogger(__name__)
+
 __all__ = ["ExportStats", "export_entries"]
 
 
 @dataclass
 class ExportStats:
-    """What :func:`export_entries` did: entries copied, already there, missing from the source; bytes copied."""
+    """What :func:`export_entries` did: entries copied (``replaced`` of them over a differing copy), already there
+    (the same bytes), missing from the source; bytes copied."""
 
     copied: int = 0
+    replaced: int = 0  # of those copied: a differing copy was in the export folder
     present: int = 0
     missing: int = 0
     bytes_copied: int = 0
@@ -55,9 +61,12 @@ def export_entries(dataset: Any, dest: str | Path, indices: list[int] | None = N
             stats.missing += 1
             continue
         size = src.stat().st_size
-        if dst.is_file() and dst.stat().st_size == size:
-            stats.present += 1
-            continue
+        if dst.is_file():
+            if dst.stat().st_size == size and filecmp.cmp(src, dst, shallow=False):  # the bytes, not only the size
+                stats.present += 1
+                continue
+            log.warning("export: %s differs from the cache's entry (a corrupt or stale copy): replaced", dst)
+            stats.replaced += 1
         with atomic_open(dst, "wb") as out, open(src, "rb") as inp:  # a temp file renamed when complete
             shutil.copyfileobj(inp, out)
         stats.copied += 1

@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tvrecon.utils.atomic import tmp_writer_gone
+
 __all__ = ["announce_uncached", "job_start_time", "remove_stale_tmp", "uncached_items"]
 
 log = logging.getLogger(__name__)
@@ -39,7 +41,9 @@ def job_start_time() -> float:
 
 
 def remove_stale_tmp(root: str | Path | None, started: float | None = None, grace_s: float = GRACE_SECONDS) -> int:
-    """Remove the ``*.tmp`` files of the cache ``root`` (and its shard folders) older than the running job.
+    """Remove the ``*.tmp`` files of the cache ``root`` (and its shard folders) older than the running job, and at
+    once those whose writer (named in the file's name: ``tvrecon.utils.atomic.tmp_prefix``) was a process of this host
+    that no longer runs (a ``generate`` killed a moment ago; the grace period would have kept its files).
 
     Args:
         root: the cache directory (None or missing: nothing to do).
@@ -54,7 +58,7 @@ def remove_stale_tmp(root: str | Path | None, started: float | None = None, grac
     removed = 0
     for path in [*Path(root).glob("*.tmp"), *Path(root).glob("*/*.tmp")]:
         try:
-            if path.is_file() and path.stat().st_mtime < cutoff:
+            if path.is_file() and (tmp_writer_gone(path.name) or path.stat().st_mtime < cutoff):
                 path.unlink()
                 removed += 1
         except FileNotFoundError:  # another job removed or renamed it meanwhile

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from tvrecon.utils.atomic import default_file_mode
+from tvrecon.utils.atomic import default_file_mode, tmp_prefix
 from tvrecon.utils.config_utils import omitted_from_key
 
 log = logging.getLogger(__name__)
@@ -206,7 +206,7 @@ class SampleCache:
         path = self.path(key)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            fd, probe = tempfile.mkstemp(dir=path.parent, prefix=".write-probe-", suffix=".tmp")
+            fd, probe = tempfile.mkstemp(dir=path.parent, prefix=tmp_prefix("write-probe"), suffix=".tmp")
             os.close(fd)
             os.unlink(probe)
         except OSError as err:
@@ -228,7 +228,7 @@ class SampleCache:
         payload[_CHECKSUM_FIELD] = np.asarray(_checksum(data))
         path = self.path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{key[:12]}-", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=tmp_prefix(key[:12]), suffix=".tmp")  # names its writer
         try:
             with os.fdopen(fd, "wb") as f:
                 (np.savez_compressed if self.compress else np.savez)(f, **payload)

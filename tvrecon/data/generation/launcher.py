@@ -17,7 +17,7 @@ so it prints its progress and summary lines, skips cached items and writes the s
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import re
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -38,11 +38,11 @@ __all__ = ["APP_CONFIG_DIR", "MULTIRUN_FLAGS", "hydra_arguments", "is_multirun",
 #: the folder holding ``generate.yaml`` (the repository's ``configs/``)
 APP_CONFIG_DIR = PROJECT_ROOT / "configs"
 MULTIRUN_FLAGS = ("-m", "--multirun")
-#: launchers that come from a plugin: the module that provides it and how to install it
+#: launchers that come from a plugin: the modules it needs (the plugin, the library it drives) and how to install it
 _PLUGINS = {
-    "joblib": ("hydra_plugins.hydra_joblib_launcher", "pip install hydra-joblib-launcher (in the dev extra)"),
-    "submitit_slurm": ("hydra_plugins.hydra_submitit_launcher", "pip install -e '.[cluster]'"),
-    "submitit_local": ("hydra_plugins.hydra_submitit_launcher", "pip install -e '.[cluster]'"),
+    "joblib": (("hydra_plugins.hydra_joblib_launcher", "joblib"), "pip install hydra-joblib-launcher (dev extra)"),
+    "submitit_slurm": (("hydra_plugins.hydra_submitit_launcher", "submitit"), "pip install -e '.[cluster]'"),
+    "submitit_local": (("hydra_plugins.hydra_submitit_launcher", "submitit"), "pip install -e '.[cluster]'"),
 }
 
 
@@ -87,8 +87,15 @@ def _check_presets(arg: str) -> None:
 
 def _check_launcher(arg: str) -> None:
     name = arg.split("=", 1)[1].strip()
-    if name in _PLUGINS and importlib.util.find_spec(_PLUGINS[name][0]) is None:
-        raise ValueError(f"hydra/launcher={name} needs Hydra's {name} launcher plugin: {_PLUGINS[name][1]}")
+    if name not in _PLUGINS:
+        return
+    modules, hint = _PLUGINS[name]
+    try:  # imported, not only found: a plugin whose own library is missing (joblib) fails here, not in Hydra
+        for module in modules:
+            importlib.import_module(module)
+    except ImportError as err:
+        missing = f" ({err})" if str(err) else ""
+        raise ValueError(f"hydra/launcher={name} needs Hydra's {name} launcher plugin{missing}: {hint}") from None
 
 
 def _quote(text: str) -> str:

@@ -27,6 +27,7 @@ from tvrecon.data.cache.store import cache_key
 from tvrecon.data.dataset_base import GeneratedDataset
 from tvrecon.utils.cli_errors import RESUME_HINT
 from tvrecon.utils.freed_memory import keep_freed_memory
+from tvrecon.utils.process_lifetime import die_with_parent, spawnable_start_method
 
 __all__ = [
     "GenerateStats",
@@ -91,8 +92,10 @@ def touches_per_process(items: int, processes: int, per_item: int) -> int:
 _DATASETS: tuple[GeneratedDataset, ...] = ()
 
 
-def _init_worker(datasets: tuple[GeneratedDataset, ...]) -> None:
+def _init_worker(datasets: tuple[GeneratedDataset, ...], parent_pid: int | None = None) -> None:
     global _DATASETS
+    if parent_pid is not None:  # kill -9 of the parent: the worker ends too instead of generating on as an orphan
+        die_with_parent(parent_pid)
     # Ctrl-C reaches the whole process group: the main process alone answers it (one line, exit 130) and stops the
     # workers, instead of each worker printing its own KeyboardInterrupt traceback (ignored from their start too)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -153,7 +156,8 @@ def _pool_generate(
     notices a dead worker at once: the pool is stopped and :class:`WorkerDied` names the signal and how to resume.
     """
     ctx = mp.get_context("spawn")  # fork after torch/OpenMP use is unsafe
-    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(tuple(datasets),))
+    init_args = (tuple(datasets), os.getpid())  # the workers end with this process (kill -9 of it too)
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=init_args)
     procs: list[mp.process.BaseProcess] = []
     clean = False
     try:
@@ -167,7 +171,8 @@ def _pool_generate(
         elif in_main:
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
-            futures = [pool.submit(_work, i) for i in todo]
+            with spawnable_start_method():  # inside a joblib launcher's job too
+                futures = [pool.submit(_work, i) for i in todo]
         finally:
             if in_main and hasattr(signal, "pthread_sigmask"):
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

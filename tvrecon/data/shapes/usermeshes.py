@@ -18,6 +18,7 @@ import trimesh
 from tqdm import tqdm
 
 from tvrecon.data.shapes.primitives import normalize, voxel_remesh
+from tvrecon.utils.geometry import read_mesh_file
 
 log = logging.getLogger(__name__)
 
@@ -55,11 +56,7 @@ def file_sha256(path: str | Path) -> str:
 
 def _read(path: Path) -> trimesh.Trimesh:
     """Read one file as a single Trimesh (scenes are concatenated); raises ValueError when it holds no triangles."""
-    loaded = trimesh.load_mesh(path)  # multi-mesh files (glb scenes) are concatenated into one Trimesh
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise ValueError("no triangles in file")
-    if not np.all(np.isfinite(loaded.vertices)):
-        raise ValueError("non-finite vertex coordinates")
+    loaded = read_mesh_file(path, "user mesh")  # the one mesh loader: not a mesh / truncated, NaN, no triangles
     if float(np.max(loaded.extents)) <= 0:
         raise ValueError("degenerate (zero-size) mesh")
     return loaded

@@ -1,7 +1,9 @@
 """Pictures of a preset's touches: one object's sweep of touches, and a contact sheet of one touch per class.
 
-    python -m tvrecon.data.touches.sweep_figure sweep --out sweep.png [--preset cls_paper_cpu --shape gear --seed 0]
-    python -m tvrecon.data.touches.sweep_figure sheet --out sheet.png [--preset cls_paper_cpu --elevation 45]
+    python -m tvrecon.data.touches.sweep_figure sweep [--out sweep.png --preset cls_paper_cpu --shape gear --seed 0]
+    python -m tvrecon.data.touches.sweep_figure sheet [--out sheet.png --preset cls_paper_cpu --elevation 45]
+
+Without ``--out`` the picture goes to ``outputs/sweep_figure/<time>/<kind>.png``; the folder is printed at the end.
 
 The touches come from the preset's own touch policy, pad and grid (``configs/data/<preset>.yaml``), pressed with the
 EIP simulator on the library's training objects; each tile shows the normal displacement of the contact layer (cells
@@ -29,8 +31,11 @@ from tvrecon.data.presets import compose_preset  # noqa: E402
 from tvrecon.data.touches.policies import sample_touches, simulate_touches  # noqa: E402
 from tvrecon.data.views import render_view, sample_camera  # noqa: E402
 from tvrecon.utils.atomic import atomic_savefig  # noqa: E402
+from tvrecon.utils.output_dir import announce, output_dir  # noqa: E402
 
 __all__ = ["preset_dataset", "sweep_figure", "contact_sheet", "main"]
+
+PROG = "python -m tvrecon.data.touches.sweep_figure"
 
 
 def preset_dataset(preset: str, overrides: Sequence[str] = ()) -> GeneratedDataset:
@@ -97,31 +102,38 @@ def contact_sheet(ds: GeneratedDataset, elevation: float = 45.0, seed: int = 0, 
 
 
 def main(argv: Sequence[str] | None = None) -> Path:
-    p = argparse.ArgumentParser(
-        prog="python -m tvrecon.data.touches.sweep_figure", description=__doc__.split("\n\n")[0]
-    )
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("kind", choices=("sweep", "sheet"), help="one object's sweep, or one touch per class")
-    p.add_argument("--out", required=True, type=Path, help="PNG file to write")
+    p.add_argument("--out", default=None, type=Path, help="PNG file to write (default outputs/sweep_figure/<time>/)")
     p.add_argument("--preset", default="cls_paper_cpu", help="data preset (configs/data), default cls_paper_cpu")
     p.add_argument("--shape", default="gear", help="object class of the sweep (default: gear)")
     p.add_argument("--seed", type=int, default=0, help="training instance and touch seed (default: 0)")
     p.add_argument("--touches", type=int, default=10, help="touches of the sweep (default: 10)")
     p.add_argument("--elevation", type=float, default=45.0, help="elevation of the sheet's touches, degrees")
     p.add_argument("overrides", nargs="*", help="Hydra overrides of the preset, e.g. press.n_grid=40")
-    args = p.parse_args(argv)
+    args = p.parse_intermixed_args(argv)  # overrides after the options too: `sweep --shape gear press.n_grid=40`
     if args.touches < 1:
         p.error(f"--touches must be >= 1, got {args.touches}")
+    if not -90.0 <= args.elevation <= 90.0:  # checked before the preset's dataset is built
+        raise ValueError(f"--elevation must be in [-90, 90] degrees (0: the side, 90: the top), got {args.elevation:g}")
     torch.set_num_threads(1)
     ds = preset_dataset(args.preset, args.overrides)
+    if args.kind == "sweep" and args.shape not in ds.classes:
+        classes = ", ".join(ds.classes)
+        raise ValueError(f"--shape {args.shape!r} is not a class of preset {args.preset!r}; its classes: {classes}")
     if args.kind == "sweep":
         fig = sweep_figure(ds, args.shape, args.seed, args.touches)
     else:
         fig = contact_sheet(ds, args.elevation, args.seed)
-    out = atomic_savefig(fig, args.out, format="png", dpi=110, bbox_inches="tight", facecolor="white")
+    target = args.out if args.out is not None else output_dir(None, "sweep_figure") / f"{args.kind}.png"
+    out = Path(atomic_savefig(fig, target, format="png", dpi=110, bbox_inches="tight", facecolor="white"))
     plt.close(fig)
-    print(f"wrote {out}")
-    return Path(out)
+    print(f"wrote {out.name}")
+    announce(out.parent)
+    return out
 
 
 if __name__ == "__main__":
-    main()
+    from tvrecon.utils.cli_errors import run_cli
+
+    run_cli(main, prog=PROG)  # errors: one line, exit 2 (bad input) / 1 / 130

@@ -11,6 +11,17 @@ import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless offscreen rendering; read when mujoco is imported
 
+#: the MUJOCO_GL values MuJoCo's renderer knows
+GL_BACKENDS = ("egl", "osmesa", "glfw", "disable")
+#: why the MUJOCO_GL given cannot be used (:func:`check_gl_setting`): importing mujoco with it raised mid-import
+BAD_GL_SETTING = ""
+if os.environ["MUJOCO_GL"].strip().lower() not in GL_BACKENDS:
+    BAD_GL_SETTING = (
+        f"MUJOCO_GL={os.environ['MUJOCO_GL']!r} is not a MuJoCo rendering backend: use egl (headless), osmesa "
+        f"(software rendering) or glfw (a display), or render=false"
+    )
+    os.environ["MUJOCO_GL"] = "disable"  # mujoco imports (physics only); the run refuses the setting in one line
+
 _GL_IMPORT_ERROR = ""
 try:
     import mujoco
@@ -25,7 +36,14 @@ import numpy as np  # noqa: E402
 
 from tvrecon.utils.shape_check import check_shape  # noqa: E402
 
-__all__ = ["RendererUnavailable", "MujocoCamera", "open_renderer", "depth_to_world"]
+__all__ = ["GL_BACKENDS", "RendererUnavailable", "MujocoCamera", "check_gl_setting", "open_renderer", "depth_to_world"]
+
+
+def check_gl_setting() -> None:
+    """Raise ValueError when the user's ``MUJOCO_GL`` names no rendering backend (MuJoCo's own import error was a
+    traceback before any message)."""
+    if BAD_GL_SETTING:
+        raise ValueError(BAD_GL_SETTING)
 
 
 class RendererUnavailable(RuntimeError):

@@ -39,12 +39,17 @@ from tqdm.auto import tqdm  # noqa: E402
 # library
 import tvrecon.robot.mujoco.camera  # noqa: E402, F401
 from tvrecon.robot.grasp import GraspPlan  # noqa: E402
+from tvrecon.robot.mujoco.camera import check_gl_setting  # noqa: E402
 from tvrecon.robot.mujoco.pick_place_config import MujocoPickPlaceConfig, MujocoPickPlaceResult  # noqa: E402
 from tvrecon.robot.mujoco.task import PickPlaceRun, execute  # noqa: E402
 from tvrecon.robot.pick_place_common import PHASES, resolve_object_mesh  # noqa: E402
 from tvrecon.utils.atomic import atomic_open  # noqa: E402
+from tvrecon.utils.cli_errors import hydra_task, run_hydra_cli  # noqa: E402
+from tvrecon.utils.output_dir import announce  # noqa: E402
 
 __all__ = ["collect_log", "run_mujoco_pick_place", "main"]
+
+PROG = "python -m tvrecon.robot.mujoco.pick_place"
 
 
 def collect_log(run: PickPlaceRun, plan: GraspPlan | None, outcome: tuple, cfg: MujocoPickPlaceConfig) -> dict:
@@ -96,6 +101,8 @@ def run_mujoco_pick_place(
     threads = torch.get_num_threads()
     if cfg.torch_threads is not None:
         torch.set_num_threads(int(cfg.torch_threads))
+    if cfg.render:
+        check_gl_setting()  # MUJOCO_GL=bogus: one line before anything is built
     try:
         mesh = cfg.mesh if cfg.mesh is not None else resolve_object_mesh(cfg.object, cfg.seed)
         out = Path(cfg.out_dir)
@@ -128,6 +135,9 @@ def run_mujoco_pick_place(
     finally:
         torch.set_num_threads(threads)
     success, message, reached, plan, err = outcome
+    if run.camera is None:  # no perception: say it on the result's line, not only in a warning above the progress
+        why = "render=false" if not cfg.render else "no renderer"
+        message += f" [grasp planned from the simulator's own object mesh (ground truth, {why}), not perceived]"
     presses = sum(p.num_presses for p in run.pads)
     wall = time.perf_counter() - t0
     rendered = run.view is not None
@@ -145,6 +155,7 @@ def _hydra_entry() -> None:
     outcome: dict[str, bool] = {}
 
     @hydra.main(version_base="1.3", config_path=config_dir, config_name="mujoco_pick_place")
+    @hydra_task(PROG)
     def _main(dcfg: DictConfig) -> None:
         d = OmegaConf.to_container(dcfg, resolve=True)
         if not d.get("out_dir"):
@@ -154,6 +165,7 @@ def _hydra_entry() -> None:
         print(f"[{'OK' if res.success else 'FAILED'}] {res.message}")
         print(f"log: {res.log_path}\ngif: {res.gif_path}\nmp4: {res.mp4_path}\nstrip: {res.strip_path}")
         print(f"wall time {res.wall_time:.1f} s, {res.num_presses} EIP presses, {len(res.log.get('step', []))} frames")
+        announce(d["out_dir"])  # the run's folder, the last line as every CLI's
 
     _main()
     if outcome.get("success") is False:  # scripts must tell a failed run from a done one (outputs are written)
@@ -161,8 +173,12 @@ def _hydra_entry() -> None:
 
 
 def main() -> None:
-    """Console entry point (Hydra): ``python -m tvrecon.robot.mujoco.pick_place object=can``; exit 1 on [FAILED]."""
-    _hydra_entry()
+    """Console entry point (Hydra): ``python -m tvrecon.robot.mujoco.pick_place object=can``; exit 1 on [FAILED].
+
+    Bad input (``place_xy=[0.5]``, ``MUJOCO_GL=bogus``, a missing mesh) is one line on stderr and exit status 2,
+    Ctrl-C 130 (``tvrecon.utils.cli_errors``; ``--debug`` keeps the traceback).
+    """
+    run_hydra_cli(_hydra_entry, prog=PROG)
 
 
 if __name__ == "__main__":

@@ -53,6 +53,10 @@ class PickPlaceRun:
         )
         self.camera = self.view = None
         self.render_note = ""
+        if not cfg.render:
+            tqdm.write(
+                "warning: render=false: the grasp is planned from the simulator's own object mesh (ground truth)"
+            )
         if cfg.render:
             try:
                 self.camera = MujocoCamera(m, "perception", c.width, c.height)

@@ -32,6 +32,7 @@ from tvrecon.robot.pybullet.finger import TactileFinger
 from tvrecon.robot.pybullet.pick_place_config import PickPlaceConfig
 from tvrecon.robot.pybullet.scene import PANDA_FINGER_LINKS, PANDA_MAX_OPENING, Scene
 from tvrecon.utils.atomic import atomic_open
+from tvrecon.utils.output_dir import announce
 
 __all__ = ["PickPlaceResult", "run_pick_place", "main"]
 
@@ -305,6 +306,7 @@ def _hydra_entry() -> None:
         print(f"[{status}] {res.message}")
         print(f"log: {res.log_path}\ngif: {res.gif_path}\nmp4: {res.mp4_path}\nstrip: {res.strip_path}")
         print(f"wall time {res.wall_time:.1f} s, {res.num_presses} EIP presses, {len(res.log.get('step', []))} frames")
+        announce(d["out_dir"])  # the run's folder, the last line as every CLI's
 
     _main()
     if outcome.get("success") is False:  # scripts must tell a failed pick-place from a done one (logs are written)

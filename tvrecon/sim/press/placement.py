@@ -11,6 +11,7 @@ pipeline the same clearance, so the touches it samples (:func:`pad_reachable`) a
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -61,10 +62,36 @@ def pad_reach(s: SensorConfig, p: PressConfig) -> float:
     return 0.5 - (s.thickness + float(p.gap) + float(p.max_depth) + REACH_MARGIN_CELLS) * dx
 
 
+def host_points(value, name: str, shape: str = "(T, 3)") -> Tensor:
+    """``value`` (numbers, a numpy array, a tensor on any device, or a list of those) as a float32 CPU tensor.
+
+    The placement runs on the host (ray casting in numpy), so a touch's position and direction on another device
+    than the simulator's, or on different devices from each other, are copied here instead of failing inside torch.
+
+    Raises:
+        TypeError: ``value`` holds a string (``'0 0 0.3'``, ``'down'``) or anything else that is not a number, or
+            a tensor without values (the meta device); the message names ``name`` and the ``shape`` expected.
+    """
+    example = "[0, 0, -1]" if shape == "(3,)" else "[[0, 0, -1], ...]"
+    items = value if isinstance(value, list | tuple) else [value]
+    if isinstance(value, str | bytes) or any(isinstance(v, str | bytes) for v in items):
+        raise TypeError(f"{name} must be numbers of shape {shape}, e.g. {example}; got the string {value!r}")
+    if any(isinstance(v, Tensor) and v.device.type == "meta" for v in items):
+        raise TypeError(f"{name} is a tensor on the meta device (it holds no values): pass numbers of shape {shape}")
+    try:
+        if isinstance(value, Tensor):
+            return value.detach().to(device="cpu", dtype=torch.float32)
+        if any(isinstance(v, Tensor) for v in items):
+            return torch.stack([torch.as_tensor(v).detach().to(device="cpu", dtype=torch.float32) for v in items])
+        return torch.as_tensor(np.asarray(value, dtype=np.float32))
+    except (TypeError, ValueError, RuntimeError) as err:
+        got = f"{value!r:.120} ({err})"
+        raise TypeError(f"{name} must be numbers of shape {shape}, e.g. {example}; got {got}") from None
+
+
 def as_vec3(value, name: str) -> Tensor:
-    """``value`` as a finite (3,) float32 CPU tensor; ValueError naming ``name`` otherwise."""
-    t = torch.as_tensor(np.asarray(value, dtype=np.float32) if not isinstance(value, Tensor) else value)
-    t = t.detach().to(torch.float32).cpu()
+    """``value`` as a finite (3,) float32 CPU tensor; TypeError / ValueError naming ``name`` otherwise."""
+    t = host_points(value, name, "(3,)")
     check_shape(t, "(3,)", name)
     if not bool(torch.isfinite(t).all()):
         raise ValueError(f"{name} must be finite, got {t.tolist()}")
@@ -121,7 +148,8 @@ def place_touch(
         need = s.thickness + float(p.gap) + float(p.max_depth) + REACH_MARGIN_CELLS
         depth = f"; a depth of {_num(p.depth)} cells sets it to {_num(p.depth)} + 0.5" if p.depth is not None else ""
         raise ValueError(
-            f"the press does not fit in the domain: pad thickness {s.thickness:g} + gap {_num(p.gap)} + max_depth "
+            f"the press does not fit in the domain of n_grid={int(p.n_grid)} (the smallest that fits it is "
+            f"{2 * math.ceil(need)}): pad thickness {s.thickness:g} + gap {_num(p.gap)} + max_depth "
             f"{_num(p.max_depth)} (the hand's travel{depth}) + margin {REACH_MARGIN_CELLS:g} = {need:g} cells, more "
             f"than half the domain (n_grid / 2 = {int(p.n_grid) / 2:g} cells). Press less deep (depth / max_depth) "
             f"or raise n_grid"

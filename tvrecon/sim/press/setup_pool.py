@@ -12,6 +12,7 @@ CPU code on the same arrays, the tables copied as they are (``tests/sim/press/te
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import weakref
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -25,11 +26,14 @@ from torch import Tensor
 from tvrecon.sim.press import placement
 from tvrecon.sim.press.config import PressConfig
 from tvrecon.sim.sensor.elastic_pad import SensorConfig
+from tvrecon.utils.process_lifetime import die_with_parent
 
 __all__ = ["SetupPool"]
 
 
-def _init_worker() -> None:
+def _init_worker(parent_pid: int | None = None) -> None:
+    if parent_pid is not None:  # kill -9 of the parent: the worker ends too instead of waiting on as an orphan
+        die_with_parent(parent_pid)
     torch.set_num_threads(1)  # one process per core: the parallelism is the pool's
 
 
@@ -66,7 +70,7 @@ class SetupPool:
         if self._pool is None:
             # spawn: a forked child of a process that has used CUDA or OpenMP is unsafe
             self._pool = ProcessPoolExecutor(
-                self.processes, mp_context=mp.get_context("spawn"), initializer=_init_worker
+                self.processes, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(os.getpid(),)
             )
             weakref.finalize(self, self._pool.shutdown, wait=False, cancel_futures=True)
         return self._pool

@@ -228,6 +228,9 @@ class EIPSimulator:
         Returns:
             the :class:`TactileReading`.
         """
+        direction = placement.as_vec3(direction, "direction")  # a string or a bad shape is named here
+        if position is not None:
+            position = placement.as_vec3(position, "position")
         if position is None:
             position = self.touch_position(mesh, direction, **overrides)
             reading = self.press_batch([mesh], [position], [direction], **overrides)[0]
@@ -267,14 +270,8 @@ class EIPSimulator:
         return self._place(meshes, positions, directions, s, p)
 
     def _place(self, meshes, positions, directions, s: SensorConfig, p: PressConfig) -> list[placement.Placement]:
-        pos = (
-            torch.as_tensor(np.asarray(positions, dtype=np.float32)) if not isinstance(positions, Tensor) else positions
-        )
-        dirs = (
-            torch.as_tensor(np.asarray(directions, dtype=np.float32))
-            if not isinstance(directions, Tensor)
-            else directions
-        )
+        pos = placement.host_points(positions, "positions")  # the placement runs on the host: any device is copied
+        dirs = placement.host_points(directions, "directions")
         check_shape(pos, "(T, 3)", "positions")
         if dirs.shape != pos.shape:
             raise ValueError(

@@ -34,6 +34,7 @@ import hashlib
 import logging
 import os
 import shutil
+import sys
 from functools import cache
 from pathlib import Path
 
@@ -98,9 +99,13 @@ def _user_cache_dir() -> str | None:
     value = os.environ.get(CACHE_ENV)
     if value is None:
         return None
-    from torch._inductor.runtime.cache_dir_utils import default_cache_dir  # loaded already when torch set it
-
-    return None if os.path.abspath(value) == os.path.abspath(default_cache_dir()) else value
+    # torch sets the variable from this module only: when it is not loaded, the value is the user's. Never imported
+    # here: importing it loads torch._inductor and triton into an eager press, and triton loaded after a MuJoCo EGL
+    # context ends the process with SIGSEGV
+    utils = sys.modules.get("torch._inductor.runtime.cache_dir_utils")
+    if utils is None:
+        return value
+    return None if os.path.abspath(value) == os.path.abspath(utils.default_cache_dir()) else value
 
 
 def compile_cache_dir(root: str | Path | None = None) -> Path | None:
