@@ -28,7 +28,7 @@ from torch import Tensor, nn
 
 from tvrecon.losses.chamfer import nearest_neighbors
 from tvrecon.models.components.backbone import ResNet18Backbone
-from tvrecon.models.components.gcn import DeformationBlock, MeshDeformer
+from tvrecon.models.components.gcn import DeformationBlock, GraphInput, MeshDeformer, NeighbourOperator
 from tvrecon.models.components.reconstructor import check_view
 from tvrecon.utils.geometry import rotate_to_camera, world_to_camera
 from tvrecon.utils.shapes import check_shape
@@ -128,7 +128,7 @@ def touch_features(verts: Tensor, touch: TouchPoints, sigmas: Sequence[float]) -
         )
     if not sigmas or any(not float(s) > 0 for s in sigmas):
         raise ValueError(f"sigmas must be positive length scales, got {list(sigmas)}")
-    with torch.no_grad():
+    with torch.no_grad(), torch.autocast(verts.device.type, enabled=False):  # distances need float32
         v = verts.detach().float()
         p = touch.points.detach().float()
         n = touch.normals.detach().float()
@@ -182,14 +182,16 @@ class TouchDeformationBlock(DeformationBlock):
         self.touch_in = nn.ModuleList([nn.Linear(touch_channels, hidden) for _ in range(num_blocks)])
 
     def forward(  # type: ignore[override]
-        self, g: Tensor, verts: Tensor, edges: Tensor, neighbours: Tensor, touch: Tensor
+        self, g: GraphInput, verts: Tensor, edges: Tensor, neighbours: Tensor | NeighbourOperator, touch: Tensor
     ) -> tuple[Tensor, Tensor]:
-        """Args: g (B, V, C_in) float; verts (B, V, 3); edges (E, 2) int64; neighbours (B*V, B*V) sparse;
-        touch (B, V, F) float touch features.
+        """Args: g (B, V, C_in) float, or its parts (see :class:`~tvrecon.models.components.gcn.GraphConv`); verts
+        (B, V, 3); edges (E, 2) int64; neighbours (B*V, B*V) sparse or a ``NeighbourOperator``; touch (B, V, F) float
+        touch features.
 
         Returns: new vertices (B, V, 3) float and hidden features (B, V, hidden) float.
         """
-        h = F.relu(self.conv_in(torch.cat([g, touch], dim=-1), edges, neighbours))
+        parts = [g] if isinstance(g, Tensor) else list(g)
+        h = F.relu(self.conv_in([*parts, touch], edges, neighbours))
         for block, inject in zip(self.blocks, self.touch_in, strict=True):
             h = block(h + inject(touch), edges, neighbours)
         return verts + self.conv_out(h, edges, neighbours), h
@@ -252,7 +254,7 @@ class TouchGeometryDeformer(MeshDeformer):
             self._touch = None
 
     def _deform(
-        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
+        self, s: int, block: nn.Module, g: GraphInput, x: Tensor, edges: Tensor, neighbours: NeighbourOperator
     ) -> tuple[Tensor, Tensor]:
         """Block ``s`` with the touch features of its input vertices x (B, V_s, 3) (see :func:`touch_features`)."""
         assert self._touch is not None, "TouchGeometryDeformer._deform runs inside forward only"
