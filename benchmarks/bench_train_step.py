@@ -1,29 +1,37 @@
-"""Speed of one training step of the reconstruction model, against the straightforward graph conv and chamfer.
+"""Speed of one reconstruction training step: today's code and settings against the step of an earlier commit.
 
-Builds the network of ``configs/model/reconstructor.yaml`` (``--mode fusion`` is the paper's full model) and times
-forward + backward + AdamW step on a synthetic batch with the ``small`` preset's shapes (B = 8 views of 128 px,
-T = 10 touches of 64 px tactile maps, 2,048 ground-truth points; sphere objects at the origin, camera at distance 2
-on -z), twice in the same process:
+Builds the LightningModule of ``configs/train.yaml`` for each ``--modes`` entry (``full``: the paper's model,
+``visual_only``: Pixel2Mesh, ``touch_geometry``: the deformer reading contact patches) and times forward, the
+Pixel2Mesh losses, backward and an AdamW step on a synthetic batch with the ``small`` / ``paper_cpu`` shapes (B = 8
+views of 128 px, T = 10 touches of 64 px tactile maps, 2,048 ground-truth points, contact patches of 31 x 31 points;
+spheres at the origin, camera at distance 2 on -z), twice in the same process, alternating:
 
-* ours: ``tvrecon.models.components.gcn.GraphConv`` (neighbour sums as one sparse CSR matrix product per conv) and
-  ``tvrecon.losses.chamfer.nearest_neighbors`` (argmin of ``|y|^2 - 2 x.y``, one batched matmul);
-* reference: the same network and losses with ``benchmarks/reference_train.py`` swapped in for both (gather both
-  ends of every edge and ``index_add``; ``torch.cdist(...).square()``).
+* new: today's code with the configured ``trainer.precision`` (autocast as Lightning's ``bf16-mixed`` does it:
+  forward and losses, not backward) and the model's ``channels_last``;
+* old: the same weights and batch with the deformer and the chamfer of ``--baseline`` (``reference_train.old_step``,
+  the code read from git), float32, contiguous images.
 
-Both start from the same weights and batch; the script prints the step times, their ratio, the deformer's share
-of the step, and the difference of loss and gradients between the two. They compute the same function, up to round-off
-and near-ties of the nearest-neighbour search (a point almost equidistant from two others may pick the other one,
-which moves that point's chamfer and normal terms; the expanded search is the more exact one against float64).
+Prints per mode the min and median of each path's step and their ratios, and checks that the two compute the same
+function: loss and gradients of the first step of today's code in float32 against the old code (the nearest-neighbour
+search may pick the other of two near-tied points, which moves that point's chamfer and normal terms a little), and
+the loss of the mixed-precision step. ``--out`` writes the figures as JSON (atomic).
 
-    .venv/bin/python benchmarks/bench_train_step.py [--threads 1] [--repeats 3] [--mode fusion|visual_only]
+    .venv/bin/python benchmarks/bench_train_step.py --threads 1 --repeats 5 [--modes full visual_only touch_geometry]
+        [--out results/bench/train_step/<machine>-<date>.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
+import datetime
+import json
 import math
 import os
+import platform
+import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -37,12 +45,14 @@ os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
 import hydra  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
-from reference_train import cdist_nearest_neighbors, index_add_forward  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
+from reference_train import BASELINE, old_step  # noqa: E402
 
-import tvrecon.losses.chamfer as chamfer_module  # noqa: E402
-from tvrecon.models.components.gcn import GraphConv  # noqa: E402
 from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
 from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches  # noqa: E402
+from tvrecon.utils.atomic import atomic_write_text  # noqa: E402
+
+MODES = ("full", "visual_only", "touch_geometry")
 
 
 def synthetic_batch(B: int = 8, T: int = 10, H: int = 128, h: int = 64, N: int = 2048, seed: int = 0) -> dict:
@@ -67,27 +77,67 @@ def synthetic_batch(B: int = 8, T: int = 10, H: int = 128, h: int = 64, N: int =
     }
 
 
-def build_module(mode: str) -> ReconstructionModule:
-    """The LightningModule of the real model config (``experiment=full`` or ``visual_only``)."""
+def with_patches(batch: dict, q: int = 31 * 31, seed: int = 1) -> dict:
+    """``batch`` plus contact patches of the ``paper_cpu`` pad's size (Q = 31 x 31 points a touch): points spread
+    around each touch's position on its sphere, the sphere's normals, about half of each patch in contact."""
+    g = torch.Generator().manual_seed(seed)
+    B, T = batch["touch_mask"].shape
+    radius = batch["points"].norm(dim=-1)[:, :1, None]  # (B, 1, 1): the sphere of each sample
+    around = batch["positions"][:, :, None] + 0.1 * radius[..., None] * torch.randn(B, T, q, 3, generator=g)
+    points = torch.nn.functional.normalize(around, dim=-1) * radius[..., None]  # (B, T, Q, 3) on the sphere
+    return {
+        **batch,
+        "patch_points": points,
+        "patch_normals": torch.nn.functional.normalize(points, dim=-1),
+        "patch_mask": torch.rand(B, T, q, generator=g) < 0.5,
+    }
+
+
+def compose_train(mode: str, overrides: list[str] | None = None) -> DictConfig:
+    """``configs/train.yaml`` with ``experiment=<mode>`` (``fusion`` is an alias of ``full``) and ``overrides``."""
+    experiment = "full" if mode == "fusion" else mode
     with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
-        cfg = compose("train", overrides=[f"experiment={'full' if mode == 'fusion' else mode}"])
-    return hydra.utils.instantiate(cfg.model)
+        return compose("train", overrides=[f"experiment={experiment}", *(overrides or [])])
 
 
-def train_step(module: ReconstructionModule, opt: torch.optim.Optimizer, batch: dict) -> float:
-    """One optimizer step (forward, the Pixel2Mesh losses, backward, AdamW); returns the loss."""
+def build_module(mode: str, overrides: list[str] | None = None) -> ReconstructionModule:
+    """The LightningModule of the real model config (``experiment=<mode>``)."""
+    return hydra.utils.instantiate(compose_train(mode, overrides).model)
+
+
+def autocast(precision: str, device: str = "cpu") -> contextlib.AbstractContextManager:
+    """The autocast Lightning runs the forward under for ``trainer.precision`` (``bf16-mixed`` / ``16-mixed``)."""
+    if precision in ("bf16-mixed", "bf16"):
+        return torch.autocast(device, dtype=torch.bfloat16)
+    if precision in ("16-mixed", "16"):
+        return torch.autocast(device, dtype=torch.float16)
+    return contextlib.nullcontext()
+
+
+def train_step(module: ReconstructionModule, opt: torch.optim.Optimizer, batch: dict, precision: str = "32") -> float:
+    """One optimizer step (forward and the losses under ``precision``'s autocast, backward, AdamW); returns the loss.
+
+    Ten touches per sample (the most the presets serve); the touch-geometry patch term as in ``training_step``.
+    """
     points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
     mask = None if module.modality == "visual" else keep_first_touches(batch["touch_mask"], 10)
-    out = module(batch, mask)
-    terms = module.compute_losses(out, points, normals)
+    with autocast(precision):
+        out = module(batch, mask)
+        terms = module.compute_losses(out, points, normals)
+        loss = terms["loss"]
+        weight = float(module.hparams.get("patch_loss_weight", 0.0))
+        if weight > 0 and out.get("touch") is not None:
+            from tvrecon.models.components.touch_geometry import patch_to_mesh_loss
+
+            loss = loss + weight * sum(patch_to_mesh_loss(v, out["touch"]) for v in out["verts"])
     opt.zero_grad(set_to_none=True)
-    terms["loss"].backward()
+    loss.backward()
     opt.step()
-    return float(terms["loss"].detach())
+    return float(loss.detach())
 
 
 def time_steps(module: ReconstructionModule, batch: dict, repeats: int) -> tuple[list[float], float, list]:
-    """Warm-up step, then ``repeats`` timed steps; returns (times, first loss, gradients of the first step)."""
+    """Warm-up step, then ``repeats`` timed float32 steps; returns (times, first loss, gradients of the first step)."""
     opt = torch.optim.AdamW(module.parameters(), lr=0.0)  # lr 0: every timed step sees the same weights
     loss = train_step(module, opt, batch)
     grads = [p.grad.detach().clone() if p.grad is not None else None for p in module.parameters()]
@@ -99,57 +149,118 @@ def time_steps(module: ReconstructionModule, batch: dict, repeats: int) -> tuple
     return times, loss, grads
 
 
-def deformer_time(module: ReconstructionModule, batch: dict) -> float:
-    """Seconds of forward + backward through the mesh deformer and the losses alone (fixed image features)."""
-    with torch.no_grad():
-        feats = module.net(batch["image"], batch["K"], batch["RT"])["features"]
-    feats = [f.detach().requires_grad_(True) for f in feats]
-    points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
-    size = (batch["image"].shape[2], batch["image"].shape[3])
-    times = []
-    for _ in range(2):  # warm-up, then timed
+def first_step(module: ReconstructionModule, batch: dict, precision: str = "32") -> tuple[float, list]:
+    """Loss and gradients (None where a parameter gets none) of one step at lr 0."""
+    opt = torch.optim.AdamW(module.parameters(), lr=0.0)
+    loss = train_step(module, opt, batch, precision)
+    return loss, [p.grad.detach().float().clone() if p.grad is not None else None for p in module.parameters()]
+
+
+def grad_difference(a: list, b: list) -> float:
+    """max |a - b| / max |b| over the parameters both have gradients for."""
+    pairs = [(x, y) for x, y in zip(a, b) if x is not None and y is not None]
+    return max((x - y).abs().max().item() for x, y in pairs) / max(y.abs().max().item() for _, y in pairs)
+
+
+def bench_mode(mode: str, batch: dict, repeats: int, precision: str, baseline: str) -> dict:
+    """Old and new step of one model, alternating; returns the figures of the mode."""
+    torch.manual_seed(0)
+    new = build_module(mode)
+    old = copy.deepcopy(new)  # before any forward: each path keeps its own neighbour operators
+    old.to(memory_format=torch.contiguous_format)
+    if hasattr(old, "channels_last"):
+        old.channels_last = False
+    check = copy.deepcopy(new)  # today's code in float32, for the same-function check
+    loss_new32, grads_new32 = first_step(check, batch)
+    with old_step(baseline):
+        loss_old, grads_old = first_step(copy.deepcopy(old), batch)
+    loss_mixed, _ = first_step(copy.deepcopy(new), batch, precision)
+
+    opt_new = torch.optim.AdamW(new.parameters(), lr=0.0)
+    opt_old = torch.optim.AdamW(old.parameters(), lr=0.0)
+    train_step(new, opt_new, batch, precision)  # warm-up of both paths
+    with old_step(baseline):
+        train_step(old, opt_old, batch)
+    t_new, t_old = [], []
+    for _ in range(repeats):
+        with old_step(baseline):
+            t0 = time.perf_counter()
+            train_step(old, opt_old, batch)
+            t_old.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        out = module.net.deformer(feats, batch["K"], size)
-        module.compute_losses(out, points, normals)["loss"].backward()
-        times.append(time.perf_counter() - t0)
-    return times[-1]
+        train_step(new, opt_new, batch, precision)
+        t_new.append(time.perf_counter() - t0)
+    return {
+        "mode": mode,
+        "old_s": [round(t, 4) for t in t_old],
+        "new_s": [round(t, 4) for t in t_new],
+        "speedup_min": min(t_old) / min(t_new),
+        "speedup_median": statistics.median(t_old) / statistics.median(t_new),
+        "loss_old": loss_old,
+        "loss_new_fp32": loss_new32,
+        "loss_new_mixed": loss_mixed,
+        "grad_diff_fp32": grad_difference(grads_new32, grads_old),
+    }
+
+
+def git_commit() -> str:
+    """The checkout's commit (``unknown`` outside git)."""
+    try:
+        return subprocess.run(
+            ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
-    ap.add_argument("--repeats", type=int, default=3, help="timed steps per variant (best is reported)")
-    ap.add_argument("--mode", default="fusion", choices=("fusion", "visual_only"))
+    ap.add_argument("--repeats", type=int, default=3, help="timed steps per path and mode (min and median reported)")
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=(*MODES, "fusion"))
+    ap.add_argument("--precision", default=None, help="new path's trainer.precision (default: the config's)")
+    ap.add_argument("--baseline", default=BASELINE, help="commit whose deformer and chamfer the old path runs")
+    ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
     args = ap.parse_args()
+    if args.repeats < 1:
+        print("error: --repeats must be >= 1", file=sys.stderr)
+        sys.exit(2)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
-    torch.manual_seed(0)
-    batch = synthetic_batch()
-    ours = build_module(args.mode)
-    ref = copy.deepcopy(ours)
-    print(f"model: {args.mode}, batch B=8 T=10 128px view 64px tactile, threads={torch.get_num_threads()}")
-
-    t_ours, loss_ours, g_ours = time_steps(ours, batch, args.repeats)
-    d_ours = deformer_time(ours, batch)
-    original = GraphConv.forward, chamfer_module.nearest_neighbors
-    GraphConv.forward = index_add_forward  # the reference graph convolution, same weights
-    chamfer_module.nearest_neighbors = cdist_nearest_neighbors
-    try:
-        t_ref, loss_ref, g_ref = time_steps(ref, batch, args.repeats)
-        d_ref = deformer_time(ref, batch)
-    finally:
-        GraphConv.forward, chamfer_module.nearest_neighbors = original
-    pairs = [(a, b) for a, b in zip(g_ours, g_ref) if a is not None and b is not None]
-    grad_diff = max((a - b).abs().max().item() for a, b in pairs) / max(b.abs().max().item() for _, b in pairs)
-    best, best_ref = min(t_ours), min(t_ref)
-    print(f"ours:      step {best:.2f} s (runs {[round(t, 2) for t in t_ours]}), deformer + losses {d_ours:.2f} s")
-    print(f"reference: step {best_ref:.2f} s (runs {[round(t, 2) for t in t_ref]}), deformer + losses {d_ref:.2f} s")
+    precision = args.precision or str(compose_train("full").trainer.get("precision", "32-true"))
+    batch = with_patches(synthetic_batch())
     print(
-        f"speed-up ours / reference: {best_ref / best:.2f}x per training step, {d_ref / d_ours:.2f}x deformer + losses"
+        f"batch B=8 T=10 128px view 64px tactile, threads={torch.get_num_threads()}, new precision={precision}, "
+        f"old = {args.baseline}"
     )
-    print(
-        f"same function: |loss diff| = {abs(loss_ours - loss_ref):.3g}, max |grad diff| / max |grad| = {grad_diff:.3g}"
-    )
+    rows = []
+    for mode in args.modes:
+        row = bench_mode(mode, batch, args.repeats, precision, args.baseline)
+        rows.append(row)
+        print(
+            f"{mode:15s} old min {min(row['old_s']):.2f} s  new min {min(row['new_s']):.2f} s  "
+            f"speed-up min {row['speedup_min']:.2f}x median {row['speedup_median']:.2f}x  | loss old "
+            f"{row['loss_old']:.6g} new fp32 {row['loss_new_fp32']:.6g} new {precision} {row['loss_new_mixed']:.6g}  "
+            f"max |grad diff| / max |grad| (fp32) {row['grad_diff_fp32']:.3g}",
+            flush=True,
+        )
+    if args.out is not None:
+        record = {
+            "command": " ".join([Path(sys.executable).name, *sys.argv]),
+            "commit": git_commit(),
+            "baseline": args.baseline,
+            "machine": platform.node(),
+            "cpu": platform.processor() or platform.machine(),
+            "threads": torch.get_num_threads(),
+            "torch": torch.__version__,
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "precision": precision,
+            "batch": {"B": 8, "T": 10, "view_px": 128, "tactile_px": 64, "gt_points": 2048, "patch_points": 961},
+            "modes": rows,
+        }
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out, json.dumps(record, indent=2) + "\n")
+        print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
