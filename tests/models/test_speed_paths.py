@@ -126,3 +126,20 @@ def test_channels_last_switch_keeps_the_function() -> None:
     module = ReconstructionModule(net, torch.optim.AdamW, channels_last=True)
     assert net.stem[0].weight.is_contiguous(memory_format=torch.channels_last)
     assert torch.allclose(module.net(x)[-1], ref, atol=1e-4)
+
+
+def test_bfloat16_neighbour_product_on_the_cpu() -> None:
+    """bfloat16 features take the operator's bfloat16 COO matrices: close to float32, gradients included."""
+    torch.manual_seed(0)
+    edges = torch.tensor([[0, 1], [1, 2], [0, 2], [2, 3], [3, 4], [0, 4]])
+    op = neighbour_operator(edges, 5, "mean", batch_size=3)
+    conv = GraphConv(8, 6)
+    x = torch.randn(3, 5, 8, requires_grad=True)
+    ref = conv(x, edges, op)
+    (g_ref,) = torch.autograd.grad(ref.square().sum(), x)
+    xb = x.detach().bfloat16().requires_grad_(True)
+    out = conv.bfloat16()(xb, edges, op)
+    (g_out,) = torch.autograd.grad(out.float().square().sum(), xb)
+    assert out.dtype == torch.bfloat16 and set(op.bfloat16) == {"coo"}
+    assert torch.allclose(out.float(), ref, atol=0.05, rtol=0.02)
+    assert torch.allclose(g_out.float(), g_ref, atol=0.1, rtol=0.05)

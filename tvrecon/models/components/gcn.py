@@ -96,10 +96,20 @@ class NeighbourOperator(NamedTuple):
     """A mesh level's neighbour operator and its transpose, both sparse CSR (B*V, B*V) (``neighbour_operator``).
 
     The transpose is the backward's operator: keeping it built saves converting ``matrix.t()`` on every backward.
+    ``bfloat16`` holds the two as bfloat16 COO matrices once a bfloat16 product on the CPU asked for them.
     """
 
     matrix: Tensor
     transpose: Tensor
+    bfloat16: dict[str, tuple[Tensor, Tensor]]
+
+    def cpu_bfloat16(self) -> tuple[Tensor, Tensor]:
+        """(matrix, transpose) as coalesced bfloat16 COO, built on first use."""
+        if "coo" not in self.bfloat16:
+            self.bfloat16["coo"] = tuple(  # type: ignore[assignment]
+                m.to_sparse_coo().to(torch.bfloat16).coalesce() for m in (self.matrix, self.transpose)
+            )
+        return self.bfloat16["coo"]
 
 
 def neighbour_operator(
@@ -112,7 +122,7 @@ def neighbour_operator(
     matrix = neighbour_matrix(edges, num_vertices, aggregate, batch_size)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-        return NeighbourOperator(matrix, matrix.t().to_sparse_csr())
+        return NeighbourOperator(matrix, matrix.t().to_sparse_csr(), {})
 
 
 class _SparseProduct(torch.autograd.Function):
@@ -133,14 +143,20 @@ def _aggregate(operator: Tensor | NeighbourOperator, h: Tensor) -> Tensor:
     float -> (B, V, C) float.
 
     Computed in at least float32 (float64 stays float64) outside autocast: sparse products under mixed precision are
-    not supported on every device. The result has h's dtype.
+    not supported on every device. One exception: bfloat16 features on the CPU with a ``NeighbourOperator`` take its
+    bfloat16 COO matrices (MKL's CSR product has no bfloat16 kernel; the COO one does, and a graph conv then skips
+    casting its features to float32 and back). The result has h's dtype.
     """
     B, V, C = h.shape
+    if isinstance(operator, NeighbourOperator) and h.dtype == torch.bfloat16 and h.device.type == "cpu":
+        with torch.autocast(device_type="cpu", enabled=False):
+            matrix, transpose = operator.cpu_bfloat16()
+            return _SparseProduct.apply(matrix, transpose, h.reshape(B * V, C)).reshape(B, V, C)
     dtype = torch.promote_types(h.dtype, torch.float32)
     with torch.autocast(device_type=h.device.type, enabled=False):
         flat = h.to(dtype).reshape(B * V, C)
         if isinstance(operator, NeighbourOperator):
-            matrix, transpose = (m if m.dtype == dtype else m.to(dtype) for m in operator)
+            matrix, transpose = (m if m.dtype == dtype else m.to(dtype) for m in (operator.matrix, operator.transpose))
             out = _SparseProduct.apply(matrix, transpose, flat)
         else:
             out = (operator if operator.dtype == dtype else operator.to(dtype)) @ flat
@@ -193,8 +209,9 @@ class PerceptualSample(NamedTuple):
 
 
 # Cost of sampling one channel at one vertex, forward and backward (grid_sample's scatter in the backward dominates),
-# in multiply-adds of a float32 matrix product; profiled on one core of an AMD EPYC (~25 ns against ~0.04 ns).
-_SAMPLE_COST_MACS = 512
+# in multiply-adds of a matrix product: timings of both orders for the four ResNet-18 maps of a 128 px view at 618 and
+# 2,466 vertices (one core of an AMD EPYC, bf16 autocast) put it between 520 and 2,000.
+_SAMPLE_COST_MACS = 1024
 
 
 def _project_first(pixels: int, channels: int, vertices: int, outputs: int) -> bool:
