@@ -14,7 +14,7 @@ from tvrecon.models.components.gcn import (
     GraphConv,
     MeshDeformer,
     PerceptualPooling,
-    _project_first,
+    bilinear_weights,
     neighbour_matrix,
     neighbour_operator,
 )
@@ -24,7 +24,8 @@ from tvrecon.models.precision import best_precision, cpu_has_native_bf16, regist
 
 def _view(B: int = 2, H: int = 32) -> tuple[list[torch.Tensor], torch.Tensor]:
     g = torch.Generator().manual_seed(0)
-    feats = [torch.randn(B, c, H // s, H // s, generator=g, dtype=torch.float64) for c, s in ((4, 2), (8, 4), (16, 8))]
+    sizes = ((3, 1), (4, 2), (8, 4), (16, 8))  # a 32x32 map sampled by grid_sample, the others by their weights
+    feats = [torch.randn(B, c, H // s, H // s, generator=g, dtype=torch.float64) for c, s in sizes]
     K = torch.tensor([[40.0, 0, 15.5], [0, 40.0, 15.5], [0, 0, 1]], dtype=torch.float64).repeat(B, 1, 1)
     return feats, K
 
@@ -38,7 +39,7 @@ def test_graph_conv_reads_its_input_as_parts() -> None:
     hidden = torch.randn(2, 40, 5, dtype=torch.float64, requires_grad=True)
     extra = torch.randn(2, 40, 2, dtype=torch.float64)
     edges = torch.stack([torch.arange(39), torch.arange(1, 40)], dim=1)
-    conv = GraphConv(5 + 3 + 28 + 2, 6).double()
+    conv = GraphConv(5 + 3 + 31 + 2, 6).double()
     pool = PerceptualPooling()
     maps = [f.requires_grad_(True) for f in feats]
     dense = conv(torch.cat([hidden, verts, pool(verts, K, maps, (32, 32)), extra], dim=-1), edges)
@@ -47,10 +48,26 @@ def test_graph_conv_reads_its_input_as_parts() -> None:
     grads_parts = torch.autograd.grad(parts.square().sum(), [hidden, *maps])
     assert torch.allclose(parts, dense, atol=1e-10)
     assert all(torch.allclose(a, b, atol=1e-10) for a, b in zip(grads_parts, grads_dense))
-    # the 40-vertex mesh reads the 4x4 map projected first and the 16x16 one sampled first
-    assert _project_first(16, 16, 40, 12) and not _project_first(256, 4, 40, 12)
-    with pytest.raises(ValueError, match="x must have 38 channels in all its parts, got 37"):
+    with pytest.raises(ValueError, match="x must have 41 channels in all its parts, got 40"):
         conv([hidden, verts, pool.sample(verts, K, maps, (32, 32)), extra[..., :1]], edges)
+
+
+def test_bilinear_weights_are_grid_samples() -> None:
+    """Rows of four weights reproduce grid_sample (bilinear, border, align_corners=False), gradients in the grid too,
+    also for positions outside the map and on its border."""
+    g = torch.Generator().manual_seed(2)
+    f = torch.randn(2, 5, 6, 7, generator=g, dtype=torch.float64)
+    grid = (torch.rand(2, 30, 1, 2, generator=g, dtype=torch.float64) * 2.6 - 1.3).requires_grad_(True)
+    ref = torch.nn.functional.grid_sample(f, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    ref = ref[..., 0].transpose(1, 2)  # (B, V, C)
+    S = bilinear_weights(grid, 6, 7)
+    got = S @ f.flatten(2).transpose(1, 2)
+    assert S.shape == (2, 30, 42) and torch.allclose(S.sum(-1), torch.ones(2, 30, dtype=torch.float64))
+    assert torch.allclose(got, ref, atol=1e-12)
+    probe = torch.randn(2, 30, 5, generator=g, dtype=torch.float64)
+    (g_ref,) = torch.autograd.grad((ref * probe).sum(), grid)
+    (g_got,) = torch.autograd.grad((got * probe).sum(), grid)
+    assert torch.allclose(g_got, g_ref, atol=1e-10)
 
 
 def test_prebuilt_transpose_gives_the_same_gradients() -> None:

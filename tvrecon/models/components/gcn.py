@@ -14,8 +14,8 @@
   concatenating them into one "perceptual feature"; sampling each stage at its own resolution and concatenating is
   the Pixel2Mesh original and keeps the fine stages sharp (same channels, same spirit). The deformer hands the
   samples to the first graph conv unevaluated (``PerceptualSample``): sampling is linear, so the conv multiplies a
-  feature map by its weights before sampling wherever the map has fewer pixels than the mesh has vertices (2,466 at
-  the last stage against 1,360 pixels in all four maps of a 128 px view), the same function for a fraction of the work.
+  feature map by its weights before sampling wherever that is the cheaper order (the 8x8 and 4x4 maps of a 128 px view
+  against 2,466 vertices at the last stage), and samples the smallest maps as a product with their bilinear weights.
 * ``DeformationBlock``: ``g_v = concat(f_v, x_v, proj(f_p))`` (eq. 13) -> graph conv -> G-ResNet blocks -> a hidden
   feature ``f_v`` for the next block and a coordinate update. **Choice:** the last graph conv predicts an offset added
   to ``x_v`` (initialised small, so an untrained deformer stays close to the ellipsoid) instead of absolute
@@ -190,36 +190,68 @@ class PerceptualSample(NamedTuple):
         return torch.cat([_sample_map(f, self.grid) for f in self.features], dim=1).transpose(1, 2)
 
     def project(self, weight: Tensor) -> Tensor:
-        """``sample() @ weight.T`` (B, V, C_out) float for weight (C_out, sum_j C_j), each map either sampled and then
-        multiplied by its columns of the weight, or multiplied first (a 1x1 convolution of the small map) and then
-        sampled, whichever costs less (``_project_first``); the same function up to round-off."""
-        V = self.grid.shape[1]
+        """``sample() @ weight.T`` (B, V, C_out) float for weight (C_out, sum_j C_j); the same function up to round-off.
+
+        A map of at most ``DENSE_SAMPLE_PIXELS`` pixels is sampled as a product with its (B, V, h w) bilinear weights
+        (``bilinear_weights``; grid_sample's backward scatters every channel of every vertex, which costs more than the
+        product on maps this small), in the cheaper order of the chain ``S (f W^T)`` or ``(S f) W^T``. Larger maps are
+        sampled with ``grid_sample`` and then multiplied.
+        """
+        V, O = self.grid.shape[1], weight.shape[0]
         out: Tensor | None = None
         col = 0
         for f in self.features:
-            w = weight[:, col : col + f.shape[1]]  # (C_out, C_j)
-            col += f.shape[1]
-            if _project_first(f.shape[2] * f.shape[3], f.shape[1], V, weight.shape[0]):
-                term = _sample_map(F.conv2d(f, w[:, :, None, None]), self.grid).transpose(1, 2)
+            C, h, w = f.shape[1], f.shape[2], f.shape[3]
+            wj = weight[:, col : col + C]  # (C_out, C_j)
+            col += C
+            if h * w > DENSE_SAMPLE_PIXELS or min(h, w) < 2:
+                term = F.linear(_sample_map(f, self.grid).transpose(1, 2), wj)
             else:
-                term = F.linear(_sample_map(f, self.grid).transpose(1, 2), w)
+                S = bilinear_weights(self.grid, h, w)  # (B, V, h w) float32 or wider
+                flat = f.flatten(2).transpose(1, 2)  # (B, h w, C_j)
+                if h * w * C * O + V * h * w * O < V * h * w * C + V * C * O:  # project the map first
+                    term = _weights_product(S, F.linear(flat, wj))
+                else:
+                    term = F.linear(_weights_product(S, flat), wj)
             out = term if out is None else out + term
         assert out is not None, "PerceptualSample has no feature map"
         return out
 
 
-# Cost of sampling one channel at one vertex, forward and backward (grid_sample's scatter in the backward dominates),
-# in multiply-adds of a matrix product: timings of both orders for the four ResNet-18 maps of a 128 px view at 618 and
-# 2,466 vertices (one core of an AMD EPYC, bf16 autocast) put it between 520 and 2,000.
-_SAMPLE_COST_MACS = 1024
+# maps with at most this many pixels are sampled by a product with their bilinear weights (a 128 px view's 8x8 and 4x4
+# ResNet stages, a 224 px view's 7x7), larger maps by grid_sample: with the four maps of a 128 px view and a weight of
+# 384 columns, forward + backward of ``project`` at 2,466 vertices took 0.30 s with 64 here, 0.29-0.43 s with 256 and
+# 0.74-0.80 s with grid_sample alone (one core of an AMD EPYC, bf16 autocast)
+DENSE_SAMPLE_PIXELS = 64
 
 
-def _project_first(pixels: int, channels: int, vertices: int, outputs: int) -> bool:
-    """Whether multiplying a (channels, pixels) map by a (outputs, channels) weight before sampling it at
-    ``vertices`` points costs less than sampling first (counts of forward + backward: three products, one sample)."""
-    project_first = 3 * pixels * channels * outputs + _SAMPLE_COST_MACS * vertices * outputs
-    sample_first = _SAMPLE_COST_MACS * vertices * channels + 3 * vertices * channels * outputs
-    return project_first < sample_first
+def bilinear_weights(grid: Tensor, height: int, width: int) -> Tensor:
+    """The weights of ``grid_sample(mode="bilinear", padding_mode="border", align_corners=False)`` as a matrix.
+
+    Args:
+        grid: (B, V, 1, 2) float normalised (x, y) sample positions; height, width: the map's size (both >= 2).
+
+    Returns:
+        S (B, V, height * width) float32 (or wider), four non-zeros a row summing to 1, differentiable in ``grid``:
+        ``S @ f.flatten(2).transpose(1, 2)`` equals ``grid_sample(f, grid)[..., 0].transpose(1, 2)``.
+    """
+    g = grid[:, :, 0, :].to(torch.promote_types(grid.dtype, torch.float32))  # (B, V, 2)
+    x = (((g[..., 0] + 1.0) * width - 1.0) * 0.5).clamp(0.0, width - 1.0)  # pixel coordinates, border padding
+    y = (((g[..., 1] + 1.0) * height - 1.0) * 0.5).clamp(0.0, height - 1.0)
+    x0 = x.detach().floor().clamp(max=width - 2)  # left / top corner, so that the right / bottom one is inside
+    y0 = y.detach().floor().clamp(max=height - 2)
+    wx, wy = x - x0, y - y0  # (B, V) in [0, 1]
+    base = (y0 * width + x0).long()  # (B, V)
+    index = torch.stack([base, base + 1, base + width, base + width + 1], dim=-1)  # (B, V, 4)
+    weights = torch.stack([(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy], dim=-1)  # (B, V, 4)
+    S = torch.zeros(*base.shape, height * width, dtype=weights.dtype, device=weights.device)
+    return S.scatter_add(2, index, weights)
+
+
+def _weights_product(S: Tensor, values: Tensor) -> Tensor:
+    """S (B, V, P) @ values (B, P, C) outside autocast, in S's precision (sampling weights stay float32)."""
+    with torch.autocast(S.device.type, enabled=False):
+        return torch.bmm(S, values.to(S.dtype))
 
 
 def _sample_map(f: Tensor, grid: Tensor) -> Tensor:
