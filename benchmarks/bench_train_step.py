@@ -34,6 +34,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -47,7 +48,11 @@ import hydra  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402
 from reference_train import BASELINE, old_step  # noqa: E402
+from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
+from tvrecon.losses.chamfer import chamfer_terms, nearest_neighbors  # noqa: E402
+from tvrecon.losses.mesh import edge_length_loss, laplacian_loss, normal_loss  # noqa: E402
+from tvrecon.models.components.ellipsoid import unpool_features  # noqa: E402
 from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
 from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches  # noqa: E402
 from tvrecon.utils.atomic import atomic_write_text  # noqa: E402
@@ -203,6 +208,176 @@ def bench_mode(mode: str, batch: dict, repeats: int, precision: str, baseline: s
     }
 
 
+class SparseAwareFlopCounter(FlopCounterMode):
+    """``FlopCounterMode`` that counts a sparse-dense product as what it computes (2 nnz x columns), not as dense."""
+
+    def _count_flops(self, func_packet, out, args, kwargs):  # noqa: ANN001, ANN202
+        sparse = [a for a in args if isinstance(a, torch.Tensor) and a.layout != torch.strided]
+        if func_packet in (torch.ops.aten.mm, torch.ops.aten.addmm) and sparse:
+            flops = 2 * sparse[0]._nnz() * out.shape[-1]
+            for parent in set(self.mod_tracker.parents):
+                self.flop_counts[parent][func_packet] += flops
+            return out
+        return super()._count_flops(func_packet, out, args, kwargs)
+
+
+def measure(fn: Callable[[], object], repeats: int = 2) -> tuple[float, float]:
+    """(min seconds of ``fn`` over ``repeats`` runs after a warm-up, GFLOP of one run)."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    counter = SparseAwareFlopCounter(display=False)
+    with counter:
+        fn()
+    return min(times), counter.get_total_flops() / 1e9
+
+
+def leaf(t: torch.Tensor) -> torch.Tensor:
+    """A detached copy that requires grad: the input of a part timed on its own."""
+    return t.detach().clone().requires_grad_(t.is_floating_point())
+
+
+def backward_of(out: object) -> None:
+    """Backward of the sum of squares of every float tensor in ``out`` (a part's stand-in loss)."""
+    tensors = [t for t in (out if isinstance(out, (list, tuple)) else [out]) if isinstance(t, torch.Tensor)]
+    sum(t.float().square().sum() for t in tensors if t.requires_grad).backward()
+
+
+def step_split(mode: str, batch: dict, precision: str, repeats: int = 2) -> list[dict]:
+    """Today's step cut into parts, each timed forward + backward on its own (inputs detached) with its GFLOP:
+    visual branch, tactile branch and Agg blocks (full), deformer per stage, losses per term (the chamfer's
+    nearest-neighbour search on its own), optimizer. The parts' sum is near, not equal to, the whole step."""
+    torch.manual_seed(0)
+    module = build_module(mode)
+    net = module.net
+    points, normals = gt_to_camera(batch["points"], batch["normals"], batch["RT"])
+    mask = None if module.modality == "visual" else keep_first_touches(batch["touch_mask"], 10)
+    image, K, RT = batch["image"], batch["K"], batch["RT"]
+    size = (image.shape[2], image.shape[3])
+    rows: list[dict] = []
+
+    def add(part: str, fn: Callable[[], object]) -> None:
+        seconds, gflop = measure(fn, repeats)
+        rows.append({"part": part, "seconds": round(seconds, 4), "gflop": round(gflop, 3)})
+
+    def visual() -> None:
+        with autocast(precision):
+            x = net.visual.stem(image)
+            feats = []
+            for j in range(len(net.visual.stages)):
+                x = net.visual.stage(j, x)
+                feats.append(x)
+        backward_of(feats)
+
+    add("visual branch", visual)
+    with torch.no_grad(), autocast(precision):
+        full_out = module(batch, mask)
+    features = [leaf(f.float()) for f in full_out["features"]]
+    if mode in ("full", "fusion"):
+        assert net.tactile is not None and net.fusion is not None
+        with torch.no_grad(), autocast(precision):
+            touches = net._encode_touches(batch["tactile"], batch["positions"], batch["directions"], mask, K, RT, size)
+        assert touches is not None
+        tactile_in = batch["tactile"].flatten(0, 1)[touches[2].touch_index]
+
+        def tactile() -> None:
+            with autocast(precision):
+                out = net.tactile(tactile_in)
+            backward_of(out)
+
+        add("tactile branch", tactile)
+        maps = [leaf(t.float()) for t in touches[0]]
+        dir_emb = leaf(touches[1].float()) if touches[1] is not None else None
+        with torch.no_grad(), autocast(precision):
+            x = net.visual.stem(image)
+            visual_in = []
+            for j in range(len(net.visual.stages)):
+                x = net.visual.stage(j, x)
+                visual_in.append(leaf(x.float()))
+                x = net.fusion(j, x, touches[0], touches[1], touches[2], size)
+
+        def agg() -> None:
+            with autocast(precision):
+                out = [net.fusion(j, v, maps, dir_emb, touches[2], size) for j, v in enumerate(visual_in)]
+            backward_of(out)
+
+        add("Agg blocks", agg)
+    deformer = net.deformer
+    touch = full_out.get("touch")
+    for s, block in enumerate(deformer.stages):
+        x = leaf(full_out["verts_before"][s])
+        hidden = None
+        if s > 0:  # the previous stage's hidden feature, unpooled: rerun the stages before without gradients
+            with torch.no_grad(), autocast(precision):
+                hidden = stage_hidden(deformer, s, features, K, size, touch)
+
+        def stage(s: int = s, block: torch.nn.Module = block, x: torch.Tensor = x, hidden=hidden) -> None:  # noqa: ANN001
+            h = None if hidden is None else leaf(hidden)
+            with autocast(precision):
+                pooled = deformer.pool.sample(x, K, features, size)
+                g = [x, pooled] if h is None else [h, x, pooled]
+                if getattr(deformer, "reads_touch_points", False):
+                    deformer._touch = touch if touch is not None else empty_touch(K)
+                try:
+                    out = deformer._deform(s, block, g, x, deformer.template.edges(s), deformer._level_neighbours(s, 8))
+                finally:
+                    if getattr(deformer, "reads_touch_points", False):
+                        deformer._touch = None
+            backward_of(out)
+
+        add(f"deformer stage {s}", stage)
+    verts = [leaf(v.float()) for v in full_out["verts"]]
+    before = [v.detach().float() for v in full_out["verts_before"]]
+    edges = full_out["edges"]
+    add("loss: chamfer search", lambda: [nearest_neighbors(v, points) or nearest_neighbors(points, v) for v in verts])
+    add("loss: chamfer", lambda: sum(chamfer_terms(v, points).loss for v in verts).backward())
+    idx = [chamfer_terms(v, points).idx_xy for v in verts]
+    add("loss: normal", lambda: sum(normal_loss(v, e, normals, i) for v, e, i in zip(verts, edges, idx)).backward())
+    add("loss: edge", lambda: sum(edge_length_loss(v, e) for v, e in zip(verts, edges)).backward())
+    add("loss: Laplacian", lambda: sum(laplacian_loss(v, e, b) for v, e, b in zip(verts, edges, before)).backward())
+    opt = torch.optim.AdamW(module.parameters(), lr=0.0)
+    train_step(module, opt, batch, precision)  # gradients in place and AdamW's state built
+    add("optimizer (AdamW)", opt.step)
+    return rows
+
+
+def empty_touch(K: torch.Tensor) -> object:
+    """No contact point (what ``TouchGeometryDeformer.forward`` builds for ``touch=None``)."""
+    from tvrecon.models.components.touch_geometry import TouchPoints
+
+    empty = K.new_zeros(K.shape[0], 1, 3)
+    return TouchPoints(empty, empty, torch.zeros(K.shape[0], 1, dtype=torch.bool))
+
+
+def stage_hidden(
+    deformer: torch.nn.Module, s: int, features: list, K: torch.Tensor, size: tuple, touch
+) -> torch.Tensor:  # noqa: ANN001
+    """The hidden feature stage ``s`` reads (stage s-1's, unpooled), from a forward of the stages before it."""
+    B = K.shape[0]
+    x = deformer.template.verts(0).to(K.dtype)[None].expand(B, -1, -1)
+    hidden = None
+    reads_touch = getattr(deformer, "reads_touch_points", False)
+    if reads_touch:
+        deformer._touch = touch if touch is not None else empty_touch(K)
+    try:
+        for t in range(s):
+            if t > 0:
+                parent = deformer.template.parent_edges(t)
+                x, hidden = unpool_features(x, parent), unpool_features(hidden, parent)
+            pooled = deformer.pool.sample(x, K, features, size)
+            g = [x, pooled] if hidden is None else [hidden, x, pooled]
+            x, hidden = deformer._deform(
+                t, deformer.stages[t], g, x, deformer.template.edges(t), deformer._level_neighbours(t, B)
+            )
+    finally:
+        if reads_touch:
+            deformer._touch = None
+    return unpool_features(hidden, deformer.template.parent_edges(s))
+
+
 def git_commit() -> str:
     """The checkout's commit (``unknown`` outside git)."""
     try:
@@ -221,6 +396,8 @@ def main() -> None:
     ap.add_argument("--precision", default=None, help="new path's trainer.precision (default: the config's)")
     ap.add_argument("--baseline", default=BASELINE, help="commit whose deformer and chamfer the old path runs")
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
+    ap.add_argument("--split", action="store_true", help="also time today's step part by part, with GFLOP")
+    ap.add_argument("--no-compare", action="store_true", help="skip the old-against-new timing (with --split)")
     args = ap.parse_args()
     if args.repeats < 1:
         print("error: --repeats must be >= 1", file=sys.stderr)
@@ -235,7 +412,18 @@ def main() -> None:
     )
     rows = []
     for mode in args.modes:
+        if args.split:
+            split = step_split(mode, batch, precision)
+            print(f"{mode}: today's step by part ({precision}, each forward + backward on its own)")
+            for part in split:
+                print(f"  {part['part']:24s} {part['seconds']:7.3f} s  {part['gflop']:8.2f} GFLOP")
+            print(f"  {'sum of parts':24s} {sum(p['seconds'] for p in split):7.3f} s", flush=True)
+            if args.no_compare:
+                rows.append({"mode": mode, "split": split})
+                continue
         row = bench_mode(mode, batch, args.repeats, precision, args.baseline)
+        if args.split:
+            row["split"] = split
         rows.append(row)
         print(
             f"{mode:15s} old min {min(row['old_s']):.2f} s  new min {min(row['new_s']):.2f} s  "

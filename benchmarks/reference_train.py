@@ -3,11 +3,12 @@
 ``old_step(commit)`` reads the graph deformer (``tvrecon/models/components/gcn.py``), touch geometry's deformation
 block and the chamfer (``tvrecon/losses/chamfer.py``) of ``commit`` with ``git show`` into temporary modules and, while
 the context is open, makes today's classes run that code: ``GraphConv``, ``GResBlock``, ``DeformationBlock`` and
-``MeshDeformer`` (forward and its neighbour cache), ``TouchDeformationBlock.forward`` and the chamfer search of
-``tvrecon.losses.mesh``. Parameters, buffers and the backbones are shared, so a module built today runs the old step
-on the same weights. The default commit, ``487a852``, is the step before the training step was made cheaper: every
-graph conv two matrix products and a sparse product whose backward transposes the operator, the perceptual features
-sampled at every vertex and concatenated, two nearest-neighbour searches per chamfer, float32 and contiguous images.
+``MeshDeformer`` (forward and its neighbour cache), touch geometry's block, its per-stage touch features and its patch
+term, and the chamfer search of ``tvrecon.losses.mesh``. Parameters, buffers and the backbones are shared, so a module
+built today runs the old step on the same weights. The default commit, ``487a852``, is the step before the training
+step was made cheaper: every graph conv two matrix products and a sparse product whose backward transposes the
+operator, the perceptual features sampled at every vertex and concatenated, the touch features from a (B, V, P, 3)
+difference block, the chamfer's broadcast-input search, float32 and contiguous images.
 """
 
 from __future__ import annotations
@@ -38,6 +39,13 @@ _SWAPS = (
         "tvrecon/models/components/touch_geometry.py",
         ("TouchDeformationBlock", "forward"),
     ),
+    (
+        touch_geometry.TouchGeometryDeformer,
+        "_deform",
+        "tvrecon/models/components/touch_geometry.py",
+        ("TouchGeometryDeformer", "_deform"),
+    ),
+    (touch_geometry, "patch_to_mesh_loss", "tvrecon/models/components/touch_geometry.py", ("patch_to_mesh_loss",)),
     (mesh_losses, "chamfer_terms", "tvrecon/losses/chamfer.py", ("chamfer_terms",)),
 )
 
