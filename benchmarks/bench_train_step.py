@@ -154,6 +154,13 @@ def time_steps(module: ReconstructionModule, batch: dict, repeats: int) -> tuple
     return times, loss, grads
 
 
+def configured_adamw(module: ReconstructionModule) -> torch.optim.Optimizer:
+    """The module's configured optimizer (``model.optimizer``, e.g. ``fused: true``) at lr 0 (fixed weights)."""
+    keywords = dict(getattr(module.optimizer_factory, "keywords", {}))
+    keywords["lr"] = 0.0
+    return module.optimizer_factory.func(module.parameters(), **keywords)
+
+
 def first_step(module: ReconstructionModule, batch: dict, precision: str = "32") -> tuple[float, list]:
     """Loss and gradients (None where a parameter gets none) of one step at lr 0."""
     opt = torch.optim.AdamW(module.parameters(), lr=0.0)
@@ -181,8 +188,8 @@ def bench_mode(mode: str, batch: dict, repeats: int, precision: str, baseline: s
         loss_old, grads_old = first_step(copy.deepcopy(old), batch)
     loss_mixed, _ = first_step(copy.deepcopy(new), batch, precision)
 
-    opt_new = torch.optim.AdamW(new.parameters(), lr=0.0)
-    opt_old = torch.optim.AdamW(old.parameters(), lr=0.0)
+    opt_new = configured_adamw(new)
+    opt_old = torch.optim.AdamW(old.parameters(), lr=0.0)  # 487a852's configured optimizer: AdamW's for-each loop
     train_step(new, opt_new, batch, precision)  # warm-up of both paths
     with old_step(baseline):
         train_step(old, opt_old, batch)
@@ -338,7 +345,7 @@ def step_split(mode: str, batch: dict, precision: str, repeats: int = 2) -> list
     add("loss: normal", lambda: sum(normal_loss(v, e, normals, i) for v, e, i in zip(verts, edges, idx)).backward())
     add("loss: edge", lambda: sum(edge_length_loss(v, e) for v, e in zip(verts, edges)).backward())
     add("loss: Laplacian", lambda: sum(laplacian_loss(v, e, b) for v, e, b in zip(verts, edges, before)).backward())
-    opt = torch.optim.AdamW(module.parameters(), lr=0.0)
+    opt = configured_adamw(module)
     train_step(module, opt, batch, precision)  # gradients in place and AdamW's state built
     add("optimizer (AdamW)", opt.step)
     return rows
