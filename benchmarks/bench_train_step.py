@@ -7,17 +7,19 @@ views of 128 px, T = 10 touches of 64 px tactile maps, 2,048 ground-truth points
 spheres at the origin, camera at distance 2 on -z), twice in the same process, alternating:
 
 * new: today's code with the configured ``trainer.precision`` (autocast as Lightning's ``bf16-mixed`` does it:
-  forward and losses, not backward) and the model's ``channels_last``;
+  forward and losses, not backward), the model's ``channels_last`` and its configured optimizer;
 * old: the same weights and batch with the deformer and the chamfer of ``--baseline`` (``reference_train.old_step``,
-  the code read from git), float32, contiguous images.
+  the code read from git), float32, contiguous images, AdamW's default for-each loop.
 
 Prints per mode the min and median of each path's step and their ratios, and checks that the two compute the same
 function: loss and gradients of the first step of today's code in float32 against the old code (the nearest-neighbour
 search may pick the other of two near-tied points, which moves that point's chamfer and normal terms a little), and
-the loss of the mixed-precision step. ``--out`` writes the figures as JSON (atomic).
+the loss of the mixed-precision step. ``--split`` also times today's step part by part with its GFLOP;
+``--loader <preset>`` measures how long each real step waits for that preset's train loader at each ``--workers``
+count (it reads the preset's cache). ``--out`` writes the figures as JSON (atomic).
 
     .venv/bin/python benchmarks/bench_train_step.py --threads 1 --repeats 5 [--modes full visual_only touch_geometry]
-        [--out results/bench/train_step/<machine>-<date>.json]
+        [--split] [--loader paper_cpu --workers 0 1 2] [--out results/bench/train_step/<machine>-<date>.json]
 """
 
 from __future__ import annotations
@@ -385,6 +387,41 @@ def stage_hidden(
     return unpool_features(hidden, deformer.template.parent_edges(s))
 
 
+def loader_waits(
+    preset: str, workers: int, steps: int, precision: str, cache_dir: str | None = None
+) -> dict[str, object]:
+    """Seconds each training step waits for ``data=<preset>``'s train loader with ``workers`` workers, while the
+    steps are real ``visual_only`` steps on the loaded batches (the first batch, which pays the workers' start, apart).
+    """
+    overrides = [f"data={preset}", f"data.num_workers={workers}"]
+    if cache_dir is not None:
+        overrides.append(f"paths.cache_dir={cache_dir}")
+    cfg = compose_train("visual_only", overrides)
+    datamodule = hydra.utils.instantiate(cfg.data)
+    datamodule.setup("fit")
+    module = hydra.utils.instantiate(cfg.model)
+    opt = configured_adamw(module)
+    batches = iter(datamodule.train_dataloader())
+    t0 = time.perf_counter()
+    batch = next(batches)
+    first = time.perf_counter() - t0
+    waits, step_s = [], []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        train_step(module, opt, batch, precision)
+        step_s.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        batch = next(batches)
+        waits.append(time.perf_counter() - t0)
+    return {
+        "preset": preset,
+        "workers": workers,
+        "first_batch_s": round(first, 4),
+        "wait_s": [round(w, 4) for w in waits],
+        "step_s": [round(t, 3) for t in step_s],
+    }
+
+
 def git_commit() -> str:
     """The checkout's commit (``unknown`` outside git)."""
     try:
@@ -404,7 +441,10 @@ def main() -> None:
     ap.add_argument("--baseline", default=BASELINE, help="commit whose deformer and chamfer the old path runs")
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
     ap.add_argument("--split", action="store_true", help="also time today's step part by part, with GFLOP")
-    ap.add_argument("--no-compare", action="store_true", help="skip the old-against-new timing (with --split)")
+    ap.add_argument("--no-compare", action="store_true", help="skip the old-against-new timing")
+    ap.add_argument("--loader", default=None, metavar="PRESET", help="also measure the train loader's wait per step")
+    ap.add_argument("--workers", type=int, nargs="+", default=[0, 2], help="loader worker counts (with --loader)")
+    ap.add_argument("--cache-dir", default=None, help="paths.cache_dir for --loader (default: the config's)")
     args = ap.parse_args()
     if args.repeats < 1:
         print("error: --repeats must be >= 1", file=sys.stderr)
@@ -419,26 +459,33 @@ def main() -> None:
     )
     rows = []
     for mode in args.modes:
+        row: dict = {"mode": mode}
         if args.split:
-            split = step_split(mode, batch, precision)
+            row["split"] = step_split(mode, batch, precision)
             print(f"{mode}: today's step by part ({precision}, each forward + backward on its own)")
-            for part in split:
+            for part in row["split"]:
                 print(f"  {part['part']:24s} {part['seconds']:7.3f} s  {part['gflop']:8.2f} GFLOP")
-            print(f"  {'sum of parts':24s} {sum(p['seconds'] for p in split):7.3f} s", flush=True)
-            if args.no_compare:
-                rows.append({"mode": mode, "split": split})
-                continue
-        row = bench_mode(mode, batch, args.repeats, precision, args.baseline)
-        if args.split:
-            row["split"] = split
+            print(f"  {'sum of parts':24s} {sum(p['seconds'] for p in row['split']):7.3f} s", flush=True)
+        if not args.no_compare:
+            row.update(bench_mode(mode, batch, args.repeats, precision, args.baseline))
+            print(
+                f"{mode:15s} old min {min(row['old_s']):.2f} s  new min {min(row['new_s']):.2f} s  "
+                f"speed-up min {row['speedup_min']:.2f}x median {row['speedup_median']:.2f}x  | loss old "
+                f"{row['loss_old']:.6g} new fp32 {row['loss_new_fp32']:.6g} new {precision} "
+                f"{row['loss_new_mixed']:.6g}  max |grad diff| / max |grad| (fp32) {row['grad_diff_fp32']:.3g}",
+                flush=True,
+            )
         rows.append(row)
-        print(
-            f"{mode:15s} old min {min(row['old_s']):.2f} s  new min {min(row['new_s']):.2f} s  "
-            f"speed-up min {row['speedup_min']:.2f}x median {row['speedup_median']:.2f}x  | loss old "
-            f"{row['loss_old']:.6g} new fp32 {row['loss_new_fp32']:.6g} new {precision} {row['loss_new_mixed']:.6g}  "
-            f"max |grad diff| / max |grad| (fp32) {row['grad_diff_fp32']:.3g}",
-            flush=True,
-        )
+    loader = []
+    if args.loader is not None:
+        for workers in args.workers:
+            row = loader_waits(args.loader, workers, args.repeats, precision, args.cache_dir)
+            loader.append(row)
+            print(
+                f"loader data={args.loader} workers={workers}: first batch {row['first_batch_s']:.3f} s, wait per "
+                f"step {row['wait_s']} s, steps {row['step_s']} s",
+                flush=True,
+            )
     if args.out is not None:
         record = {
             "command": " ".join([Path(sys.executable).name, *sys.argv]),
@@ -452,6 +499,7 @@ def main() -> None:
             "precision": precision,
             "batch": {"B": 8, "T": 10, "view_px": 128, "tactile_px": 64, "gt_points": 2048, "patch_points": 961},
             "modes": rows,
+            "loader": loader,
         }
         args.out.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.out, json.dumps(record, indent=2) + "\n")
