@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from tvrecon.models.components.gcn import GraphConv, GResBlock, MeshDeformer, PerceptualPooling, neighbour_matrix
+from tvrecon.models.components.gcn import GraphConv, GResBlock, MeshDeformer, neighbour_matrix
+from tvrecon.models.components.perceptual import PerceptualPooling
 
 
 def test_graph_conv_matches_naive_sum_and_mean() -> None:

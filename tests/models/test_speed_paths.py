@@ -13,11 +13,10 @@ from tvrecon.losses.chamfer import chamfer_terms, nearest_neighbors
 from tvrecon.models.components.gcn import (
     GraphConv,
     MeshDeformer,
-    PerceptualPooling,
-    bilinear_weights,
     neighbour_matrix,
     neighbour_operator,
 )
+from tvrecon.models.components.perceptual import PerceptualPooling, bilinear_weights
 from tvrecon.models.components.projection import camera_to_pixel
 from tvrecon.models.precision import best_precision, cpu_has_native_bf16, register_precision_resolver
 

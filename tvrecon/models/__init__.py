@@ -16,7 +16,8 @@ from tvrecon.models.components.fusion import (
     locate_touches,
     place_embeddings,
 )
-from tvrecon.models.components.gcn import DeformationBlock, GraphConv, GResBlock, MeshDeformer, PerceptualPooling
+from tvrecon.models.components.gcn import DeformationBlock, GraphConv, GResBlock, MeshDeformer
+from tvrecon.models.components.perceptual import PerceptualPooling
 from tvrecon.models.components.projection import camera_to_pixel, project, project_with_depth
 from tvrecon.models.components.reconstructor import TactileVisualReconstructor
 from tvrecon.models.precision import best_precision, register_precision_resolver
