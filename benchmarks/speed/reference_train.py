@@ -1,51 +1,93 @@
-"""Reference versions of the two hot spots of a reconstruction training step, for ``bench_train_step.py``.
+"""The reconstruction training step of an earlier commit, swapped into today's modules, for ``bench_train_step.py``.
 
-* ``index_add_forward``: ``GraphConv`` with the neighbour sum ``agg_{v' in N(v)} W1 x_v'`` as a gather of both ends
-  of every edge and an ``index_add`` (what ``tvrecon.models.components.gcn.GraphConv`` did before its sparse neighbour
-  matrix).
-* ``cdist_nearest_neighbors``: the chamfer's nearest-neighbour search with ``torch.cdist(...).square()`` (what
-  ``tvrecon.losses.chamfer.nearest_neighbors`` did before the expanded-square search).
-
-Same parameters, same results to float32 round-off.
+``old_step(commit)`` reads the graph deformer (``tvrecon/models/components/gcn.py``), touch geometry's deformation
+block and the chamfer (``tvrecon/losses/chamfer.py``) of ``commit`` with ``git show`` into temporary modules and, while
+the context is open, makes today's classes run that code: ``GraphConv``, ``GResBlock``, ``DeformationBlock`` and
+``MeshDeformer`` (forward and its neighbour cache), touch geometry's block, its per-stage touch features and its patch
+term, and the chamfer search of ``tvrecon.losses.mesh``. Parameters, buffers and the backbones are shared, so a module
+built today runs the old step on the same weights. The default commit, ``487a852``, is the step before the training
+step was made cheaper: every graph conv two matrix products and a sparse product whose backward transposes the
+operator, the perceptual features sampled at every vertex and concatenated, the touch features from a (B, V, P, 3)
+difference block, the chamfer's broadcast-input search, float32 and contiguous images.
 """
 
 from __future__ import annotations
 
-import torch
-from torch import Tensor
+import contextlib
+import subprocess
+import sys
+import types
+from collections.abc import Iterator
+from pathlib import Path
 
-from tvrecon.models.components.gcn import GraphConv
+import tvrecon.losses.mesh as mesh_losses
+from tvrecon.models.components import gcn, touch_geometry
+
+ROOT = Path(__file__).resolve().parents[1]
+BASELINE = "487a852"
+
+# (module of today, attribute path, module file of the old commit, attribute path there)
+_SWAPS = (
+    (gcn.GraphConv, "forward", "tvrecon/models/components/gcn.py", ("GraphConv", "forward")),
+    (gcn.GResBlock, "forward", "tvrecon/models/components/gcn.py", ("GResBlock", "forward")),
+    (gcn.DeformationBlock, "forward", "tvrecon/models/components/gcn.py", ("DeformationBlock", "forward")),
+    (gcn.MeshDeformer, "forward", "tvrecon/models/components/gcn.py", ("MeshDeformer", "forward")),
+    (gcn.MeshDeformer, "_level_neighbours", "tvrecon/models/components/gcn.py", ("MeshDeformer", "_level_neighbours")),
+    (
+        touch_geometry.TouchDeformationBlock,
+        "forward",
+        "tvrecon/models/components/touch_geometry.py",
+        ("TouchDeformationBlock", "forward"),
+    ),
+    (
+        touch_geometry.TouchGeometryDeformer,
+        "_deform",
+        "tvrecon/models/components/touch_geometry.py",
+        ("TouchGeometryDeformer", "_deform"),
+    ),
+    (touch_geometry, "patch_to_mesh_loss", "tvrecon/models/components/touch_geometry.py", ("patch_to_mesh_loss",)),
+    (mesh_losses, "chamfer_terms", "tvrecon/losses/chamfer.py", ("chamfer_terms",)),
+)
 
 
-def index_add_forward(conv: GraphConv, x: Tensor, edges: Tensor, neighbours: Tensor | None = None) -> Tensor:
-    """``GraphConv.forward`` by gather + ``index_add`` (``neighbours`` is ignored).
+def load_old_module(commit: str, path: str) -> types.ModuleType:
+    """The file ``path`` of ``commit`` executed as a fresh module (its imports resolve to today's package).
 
-    Args: x (B, V, C_in) float; edges (E, 2) int64 undirected. Returns (B, V, C_out) float.
+    Raises ValueError naming the commit when git cannot show the file (not a git checkout, unknown commit).
     """
-    h = conv.neighbour_linear(x)  # (B, V, C_out)
-    src = torch.cat([edges[:, 0], edges[:, 1]])
-    dst = torch.cat([edges[:, 1], edges[:, 0]])
-    agg = torch.zeros_like(h).index_add(1, dst, h[:, src])  # (B, V, C_out) sum over neighbours
-    if conv.aggregate == "mean":
-        deg = torch.zeros(x.shape[1], dtype=h.dtype, device=h.device).index_add(0, dst, torch.ones_like(h[0, src, 0]))
-        agg = agg / deg.clamp(min=1)[None, :, None]
-    return conv.self_linear(x) + agg
+    try:
+        source = subprocess.run(
+            ["git", "-C", str(ROOT), "show", f"{commit}:{path}"], check=True, capture_output=True, text=True
+        ).stdout
+    except (OSError, subprocess.CalledProcessError) as err:
+        raise ValueError(f"cannot read {path} at commit {commit} with git (run from a git checkout): {err}") from err
+    name = f"_tvrecon_{commit}_{path.replace('/', '_').removesuffix('.py')}"
+    module = types.ModuleType(name)
+    module.__file__ = f"{commit}:{path}"
+    sys.modules[name] = module  # dataclasses / typing look their module up while the class bodies run
+    exec(compile(source, module.__file__, "exec"), module.__dict__)
+    return module
 
 
-def cdist_nearest_neighbors(
-    x: Tensor, y: Tensor, y_mask: Tensor | None = None, chunk: int = 2048
-) -> tuple[Tensor, Tensor]:
-    """``nearest_neighbors`` by ``torch.cdist``: x (B, N, 3), y (B, M, 3) float, y_mask (B, M) bool or None.
+@contextlib.contextmanager
+def old_step(commit: str = BASELINE) -> Iterator[None]:
+    """Run the training step's deformer and losses as at ``commit`` while the context is open (see the module doc).
 
-    Returns dist (B, N) float squared distance to the nearest y (differentiable) and idx (B, N) int64.
+    Modules keep their parameters; a deformer's cached neighbour operators are per code path, so use separate module
+    instances for the two paths (e.g. ``copy.deepcopy`` before the first forward).
     """
-    with torch.no_grad():
-        idx = []
-        for start in range(0, x.shape[1], chunk):
-            d = torch.cdist(x[:, start : start + chunk].detach(), y.detach()).square()  # (B, n, M)
-            if y_mask is not None:
-                d = d.masked_fill(~y_mask[:, None, :], float("inf"))
-            idx.append(d.argmin(dim=2))
-        idx_t = torch.cat(idx, dim=1)
-    nearest = torch.gather(y, 1, idx_t[..., None].expand(-1, -1, 3))  # (B, N, 3)
-    return (x - nearest).square().sum(-1), idx_t
+    files: dict[str, types.ModuleType] = {}
+    saved = []
+    try:
+        for owner, attr, path, old_attr in _SWAPS:
+            if path not in files:
+                files[path] = load_old_module(commit, path)
+            old = files[path]
+            for part in old_attr:
+                old = getattr(old, part)
+            saved.append((owner, attr, owner.__dict__[attr]))
+            setattr(owner, attr, old)
+        yield
+    finally:
+        for owner, attr, value in reversed(saved):
+            setattr(owner, attr, value)

@@ -60,19 +60,23 @@ def nearest_neighbors(x: Tensor, y: Tensor, y_mask: Tensor | None = None, chunk:
         raise ValueError(f"x and y must have the same batch size, got {x.shape[0]} and {y.shape[0]}")
     if chunk is None:
         chunk = max(1, (1 << 25) // max(1, x.shape[0] * y.shape[1]))
-    with torch.no_grad():
+    # float32 at least and outside autocast: a bfloat16 search would confuse points closer than ~1% of their range
+    with torch.no_grad(), torch.autocast(x.device.type, enabled=False):
         # argmin_j |x_i - y_j|^2 = argmin_j (|y_j|^2 - 2 x_i . y_j): one batched matmul per chunk and no sqrt/square
         # passes over the (B, n, M) block (torch.cdist expands the same way for large clouds). Both clouds are first
-        # centred on y's mean, which keeps the expansion's cancellation small for clouds far from the origin.
-        centre = y.detach().mean(dim=1, keepdim=True)  # (B, 1, 3)
-        xc, yc = x.detach() - centre, y.detach() - centre
-        y_sq = yc.square().sum(-1)[:, None, :]  # (B, 1, M)
+        # centred on y's mean, which keeps the expansion's cancellation small for clouds far from the origin. |y_j|^2
+        # rides in the product as a fourth coordinate ([x_i, 1] . [-2 y_j, |y_j|^2]): adding it as baddbmm's
+        # broadcast input would first copy it over the whole (B, n, M) block.
+        dtype = torch.promote_types(torch.promote_types(x.dtype, y.dtype), torch.float32)
+        centre = y.detach().to(dtype).mean(dim=1, keepdim=True)  # (B, 1, 3)
+        xc, yc = x.detach().to(dtype) - centre, y.detach().to(dtype) - centre
+        y_sq = yc.square().sum(-1, keepdim=True)  # (B, M, 1)
         if y_mask is not None:
-            y_sq = y_sq.masked_fill(~y_mask[:, None, :], float("inf"))
-        yt = yc.transpose(1, 2)  # (B, 3, M)
+            y_sq = y_sq.masked_fill(~y_mask[..., None], float("inf"))
+        xa = torch.cat([xc, torch.ones_like(xc[..., :1])], dim=-1)  # (B, N, 4)
+        yt = torch.cat([-2.0 * yc, y_sq], dim=-1).transpose(1, 2).contiguous()  # (B, 4, M)
         idx = [
-            torch.baddbmm(y_sq, xc[:, start : start + chunk], yt, alpha=-2.0).argmin(dim=2)
-            for start in range(0, x.shape[1], chunk)
+            torch.bmm(xa[:, start : start + chunk], yt).argmin(dim=2) for start in range(0, x.shape[1], chunk)
         ]  # each (B, n)
         idx_t = torch.cat(idx, dim=1) if idx else torch.zeros(x.shape[:2], dtype=torch.long, device=x.device)
     nearest = torch.gather(y, 1, idx_t[..., None].expand(-1, -1, 3))  # (B, N, 3)

@@ -16,9 +16,11 @@ from tvrecon.models.components.fusion import (
     locate_touches,
     place_embeddings,
 )
-from tvrecon.models.components.gcn import DeformationBlock, GraphConv, GResBlock, MeshDeformer, PerceptualPooling
+from tvrecon.models.components.gcn import DeformationBlock, GraphConv, GResBlock, MeshDeformer
+from tvrecon.models.components.perceptual import PerceptualPooling
 from tvrecon.models.components.projection import camera_to_pixel, project, project_with_depth
 from tvrecon.models.components.reconstructor import TactileVisualReconstructor
+from tvrecon.models.precision import best_precision, register_precision_resolver
 from tvrecon.utils.geometry import world_to_camera
 
 __all__ = [
@@ -34,6 +36,7 @@ __all__ = [
     "TactileClassifier",
     "TactileVisualFusion",
     "TactileVisualReconstructor",
+    "best_precision",
     "camera_to_pixel",
     "load_resnet18",
     "locate_touches",
@@ -46,3 +49,5 @@ __all__ = [
     "uv_ellipsoid",
     "world_to_camera",
 ]
+
+register_precision_resolver()  # trainer.precision: ${best_precision:<accelerator>} in configs/trainer

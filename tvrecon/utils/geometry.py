@@ -147,7 +147,8 @@ def world_to_camera(points: Tensor, RT: Tensor) -> Tensor:
     check_shape(RT, "(B, 3, 4)", "RT")
     if RT.shape[0] != points.shape[0]:
         raise ValueError(f"RT must have shape (B, 3, 4) with B={points.shape[0]}, got {tuple(RT.shape)}")
-    return transform_points(rt_to_matrix(RT), points)
+    with torch.autocast(points.device.type, enabled=False):  # camera geometry stays in the points' precision
+        return transform_points(rt_to_matrix(RT), points)
 
 
 def rotate_to_camera(vectors: Tensor, RT: Tensor) -> Tensor:
@@ -160,4 +161,5 @@ def rotate_to_camera(vectors: Tensor, RT: Tensor) -> Tensor:
     Returns:
         (B, N, 3) camera-frame vectors.
     """
-    return vectors @ RT[:, :, :3].transpose(1, 2)
+    with torch.autocast(vectors.device.type, enabled=False):  # camera geometry stays in the vectors' precision
+        return vectors @ RT[:, :, :3].to(vectors.dtype).transpose(1, 2)

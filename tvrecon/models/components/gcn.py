@@ -4,14 +4,19 @@
   degree-normalised (mean over neighbours, see ``GraphConv``). The neighbour sum is one product with a sparse CSR
   matrix, block-diagonal over the batch (``neighbour_matrix``, built once per mesh level by ``MeshDeformer``),
   instead of gathering both ends of every edge and ``index_add`` (``benchmarks/reference_train.py``; speed in
-  ``benchmarks/bench_train_step.py``).
+  ``benchmarks/bench_train_step.py``); its transpose is prebuilt for the backward (``neighbour_operator``), and
+  ``W0`` and ``W1`` run as one matrix product.
 * ``GResBlock``: two graph convs with ReLU and a residual connection, ``(x + conv2(relu(conv1(x)))) / 2`` as in
   Pixel2Mesh.
-* ``PerceptualPooling``: vertices (camera frame) are projected with K (kornia) and each visual stage is sampled
-  bilinearly with ``grid_sample(align_corners=False)`` (pixel centres at integers: see ``projection.pixel_to_grid``),
-  then the samples are concatenated. **Choice:** the paper average-pools the stages to a common size before
-  concatenating them into one "perceptual feature"; sampling each stage at its own resolution and concatenating is
-  the Pixel2Mesh original and keeps the fine stages sharp (same channels, same spirit).
+* ``PerceptualPooling`` (in ``tvrecon.models.components.perceptual``): vertices (camera frame) are projected with K
+  (kornia) and each visual stage is sampled bilinearly with ``grid_sample(align_corners=False)`` (pixel centres at
+  integers: see ``projection.pixel_to_grid``), then the samples are concatenated. **Choice:** the paper average-pools
+  the stages to a common size before concatenating them into one "perceptual feature"; sampling each stage at its own
+  resolution and concatenating is the Pixel2Mesh original and keeps the fine stages sharp (same channels, same
+  spirit). The deformer hands the samples to the first graph conv unevaluated (``PerceptualSample``): sampling is
+  linear, so the conv multiplies a feature map by its weights before sampling wherever that is the cheaper order (the
+  8x8 and 4x4 maps of a 128 px view against 2,466 vertices at the last stage), and samples the smallest maps as a
+  product with their bilinear weights.
 * ``DeformationBlock``: ``g_v = concat(f_v, x_v, proj(f_p))`` (eq. 13) -> graph conv -> G-ResNet blocks -> a hidden
   feature ``f_v`` for the next block and a coordinate update. **Choice:** the last graph conv predicts an offset added
   to ``x_v`` (initialised small, so an untrained deformer stays close to the ellipsoid) instead of absolute
@@ -23,16 +28,25 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from tvrecon.models.components.ellipsoid import EllipsoidTemplate, unpool_features
-from tvrecon.models.components.projection import camera_to_pixel, pixel_to_grid
+from tvrecon.models.components.perceptual import PerceptualPooling, PerceptualSample
 from tvrecon.utils.shape_check import check_shape
 
-__all__ = ["DeformationBlock", "GResBlock", "GraphConv", "MeshDeformer", "PerceptualPooling", "neighbour_matrix"]
+__all__ = [
+    "DeformationBlock",
+    "GResBlock",
+    "GraphConv",
+    "MeshDeformer",
+    "NeighbourOperator",
+    "neighbour_matrix",
+    "neighbour_operator",
+]
 
 _AGGREGATES = ("mean", "sum")
 
@@ -77,18 +91,83 @@ def neighbour_matrix(edges: Tensor, num_vertices: int, aggregate: str = "mean", 
         return coo.to_sparse_csr()
 
 
-def _aggregate(matrix: Tensor, h: Tensor) -> Tensor:
-    """Neighbour sums: matrix (B*V, B*V) sparse from ``neighbour_matrix``, h (B, V, C) float -> (B, V, C) float.
+class NeighbourOperator(NamedTuple):
+    """A mesh level's neighbour operator and its transpose, both sparse CSR (B*V, B*V) (``neighbour_operator``).
+
+    The transpose is the backward's operator: keeping it built saves converting ``matrix.t()`` on every backward.
+    ``bfloat16`` holds the two as bfloat16 COO matrices once a bfloat16 product on the CPU asked for them.
+    """
+
+    matrix: Tensor
+    transpose: Tensor
+    bfloat16: dict[str, tuple[Tensor, Tensor]]
+
+    def cpu_bfloat16(self) -> tuple[Tensor, Tensor]:
+        """(matrix, transpose) as coalesced bfloat16 COO, built on first use."""
+        if "coo" not in self.bfloat16:
+            self.bfloat16["coo"] = tuple(  # type: ignore[assignment]
+                m.to_sparse_coo().to(torch.bfloat16).coalesce() for m in (self.matrix, self.transpose)
+            )
+        return self.bfloat16["coo"]
+
+
+def neighbour_operator(
+    edges: Tensor, num_vertices: int, aggregate: str = "mean", batch_size: int = 1
+) -> NeighbourOperator:
+    """``neighbour_matrix`` and its transpose (both CSR), built once per mesh level by ``MeshDeformer``.
+
+    Args: as :func:`neighbour_matrix`. Returns a :class:`NeighbourOperator`.
+    """
+    matrix = neighbour_matrix(edges, num_vertices, aggregate, batch_size)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        return NeighbourOperator(matrix, matrix.t().to_sparse_csr(), {})
+
+
+class _SparseProduct(torch.autograd.Function):
+    """``A @ h`` for a constant sparse ``A`` with the prebuilt ``A^T`` as the backward's operator."""
+
+    @staticmethod
+    def forward(ctx: Any, matrix: Tensor, transpose: Tensor, h: Tensor) -> Tensor:  # noqa: D102
+        ctx.transpose = transpose
+        return matrix @ h
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[None, None, Tensor]:  # noqa: D102
+        return None, None, ctx.transpose @ grad.contiguous()
+
+
+def _aggregate(operator: Tensor | NeighbourOperator, h: Tensor) -> Tensor:
+    """Neighbour sums: operator (B*V, B*V) sparse from ``neighbour_matrix`` or ``neighbour_operator``, h (B, V, C)
+    float -> (B, V, C) float.
 
     Computed in at least float32 (float64 stays float64) outside autocast: sparse products under mixed precision are
-    not supported on every device. The result has h's dtype.
+    not supported on every device. One exception: bfloat16 features on the CPU with a ``NeighbourOperator`` take its
+    bfloat16 COO matrices (MKL's CSR product has no bfloat16 kernel; the COO one does, and a graph conv then skips
+    casting its features to float32 and back). The result has h's dtype.
     """
     B, V, C = h.shape
+    if isinstance(operator, NeighbourOperator) and h.dtype == torch.bfloat16 and h.device.type == "cpu":
+        with torch.autocast(device_type="cpu", enabled=False):
+            matrix, transpose = operator.cpu_bfloat16()
+            return _SparseProduct.apply(matrix, transpose, h.reshape(B * V, C)).reshape(B, V, C)
     dtype = torch.promote_types(h.dtype, torch.float32)
     with torch.autocast(device_type=h.device.type, enabled=False):
-        m = matrix if matrix.dtype == dtype else matrix.to(dtype)
-        out = (m @ h.to(dtype).reshape(B * V, C)).reshape(B, V, C)
-    return out.to(h.dtype)
+        flat = h.to(dtype).reshape(B * V, C)
+        if isinstance(operator, NeighbourOperator):
+            matrix, transpose = (m if m.dtype == dtype else m.to(dtype) for m in (operator.matrix, operator.transpose))
+            out = _SparseProduct.apply(matrix, transpose, flat)
+        else:
+            out = (operator if operator.dtype == dtype else operator.to(dtype)) @ flat
+    return out.reshape(B, V, C).to(h.dtype)
+
+
+def _operator_shape(neighbours: Tensor | NeighbourOperator) -> tuple[int, ...]:
+    matrix = neighbours.matrix if isinstance(neighbours, NeighbourOperator) else neighbours
+    return tuple(matrix.shape)
+
+
+GraphInput = Tensor | Sequence[Tensor | PerceptualSample]
 
 
 class GraphConv(nn.Module):
@@ -97,6 +176,10 @@ class GraphConv(nn.Module):
 
     On the near-regular ellipsoid meshes (degree 4 to 6, mostly 6) the two differ only by a rescaling of W1; the mean
     keeps activations from growing with depth, so it is the default.
+
+    Both products run as one: ``[W0; W1] x`` (one matrix product of 2 C_out columns), then the W1 half goes through
+    the sparse neighbour operator. The input may also be given as its parts (dense (B, V, C_k) tensors and a
+    :class:`PerceptualSample`, in the order of the input channels): the concatenation is then never built.
 
     Args:
         in_features: input channels C_in.
@@ -112,23 +195,65 @@ class GraphConv(nn.Module):
         self.self_linear = nn.Linear(in_features, out_features)  # W0 (+ bias)
         self.neighbour_linear = nn.Linear(in_features, out_features, bias=False)  # W1
 
-    def forward(self, x: Tensor, edges: Tensor, neighbours: Tensor | None = None) -> Tensor:
-        """Args: x (B, V, C_in) float; edges (E, 2) int64 undirected; neighbours: optional (B*V, B*V) sparse
-        ``neighbour_matrix(edges, V, self.aggregate, B)`` built by the caller once for many convs (None = build it).
+    def forward(self, x: GraphInput, edges: Tensor, neighbours: Tensor | NeighbourOperator | None = None) -> Tensor:
+        """Args: x (B, V, C_in) float, or its parts along the channels (see the class); edges (E, 2) int64
+        undirected; neighbours: optional (B*V, B*V) sparse ``neighbour_matrix(edges, V, self.aggregate, B)`` or
+        ``neighbour_operator(...)``, built by the caller once for many convs (None = build it).
 
         Returns (B, V, C_out) float.
         """
-        check_shape(x, "(B, V, C)", "x")
+        parts = [x] if isinstance(x, Tensor) else list(x)
+        first = next((p for p in parts if isinstance(p, Tensor)), None)
+        ref = first if first is not None else parts[0].grid[..., 0, 0]  # type: ignore[union-attr]
+        for part in parts:
+            if isinstance(part, Tensor):
+                check_shape(part, "(B, V, C)", "x")
         check_shape(edges, "(E, 2)", "edges")
-        B, V = x.shape[:2]
+        B, V = ref.shape[:2]
         if neighbours is None:
             neighbours = neighbour_matrix(edges, V, self.aggregate, B)
-        elif neighbours.shape != (B * V, B * V):
+        elif _operator_shape(neighbours) != (B * V, B * V):
             raise ValueError(
-                f"neighbours must have shape (B*V, B*V) = ({B * V}, {B * V}), got {tuple(neighbours.shape)}"
+                f"neighbours must have shape (B*V, B*V) = ({B * V}, {B * V}), got {_operator_shape(neighbours)}"
             )
-        h = self.neighbour_linear(x)  # (B, V, C_out)
-        return self.self_linear(x) + _aggregate(neighbours, h)
+        C = self.self_linear.out_features
+        weight = torch.cat([self.self_linear.weight, self.neighbour_linear.weight])  # (2C, C_in): [W0; W1]
+        bias = torch.cat([self.self_linear.bias, self.self_linear.bias.new_zeros(C)])  # (2C,): b on the W0 half
+        y_self, y_neighbour = self._project(parts, weight, bias).split(C, dim=-1)  # (B, V, C) each
+        return y_self + _aggregate(neighbours, y_neighbour)
+
+    def _project(self, parts: list[Tensor | PerceptualSample], weight: Tensor, bias: Tensor) -> Tensor:
+        """``concat(parts) @ weight.T + bias`` for weight (C, C_in), bias (C,): adjacent dense parts are joined, a
+        :class:`PerceptualSample` is projected (``PerceptualSample.project``). Returns (B, V, C) float."""
+        groups: list[Tensor | PerceptualSample] = []
+        run: list[Tensor] = []
+        for part in parts:
+            if isinstance(part, Tensor):
+                run.append(part)
+                continue
+            if run:
+                groups.append(run[0] if len(run) == 1 else torch.cat(run, dim=-1))
+                run = []
+            groups.append(part)
+        if run:
+            groups.append(run[0] if len(run) == 1 else torch.cat(run, dim=-1))
+        width = sum(g.shape[-1] if isinstance(g, Tensor) else g.channels for g in groups)
+        if width != weight.shape[1]:
+            raise ValueError(f"x must have {weight.shape[1]} channels in all its parts, got {width}")
+        out: Tensor | None = None
+        col = 0
+        pending: Tensor | None = bias  # added by the first dense product (in its addmm), else at the end
+        for g in groups:
+            c = g.shape[-1] if isinstance(g, Tensor) else g.channels
+            w = weight[:, col : col + c]
+            col += c
+            if isinstance(g, Tensor):
+                term, pending = F.linear(g, w, pending), None
+            else:
+                term = g.project(w)
+            out = term if out is None else out + term
+        assert out is not None
+        return out if pending is None else out + pending.to(out.dtype)
 
 
 class GResBlock(nn.Module):
@@ -139,40 +264,16 @@ class GResBlock(nn.Module):
         self.conv1 = GraphConv(features, features, aggregate)
         self.conv2 = GraphConv(features, features, aggregate)
 
-    def forward(self, x: Tensor, edges: Tensor, neighbours: Tensor | None = None) -> Tensor:
+    def forward(self, x: Tensor, edges: Tensor, neighbours: Tensor | NeighbourOperator | None = None) -> Tensor:
         """Args: x (B, V, C) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse or None (see ``GraphConv``).
 
         Returns (B, V, C) float.
         """
         if neighbours is None:
             neighbours = neighbour_matrix(edges, x.shape[1], self.conv1.aggregate, x.shape[0])
-        h = F.relu(self.conv1(x, edges, neighbours))
+        h = F.relu(self.conv1(x, edges, neighbours), inplace=True)  # in place: fewer passes over (B, V, C)
         h = self.conv2(h, edges, neighbours)
-        return F.relu((x + h) * 0.5)
-
-
-class PerceptualPooling(nn.Module):
-    """Sample multi-stage image features at the projection of each vertex (Pixel2Mesh perceptual pooling)."""
-
-    def forward(self, verts: Tensor, K: Tensor, features: Sequence[Tensor], image_size: tuple[int, int]) -> Tensor:
-        """Pool features for every vertex.
-
-        Args:
-            verts: (B, V, 3) float vertices in camera coordinates.
-            K: (B, 3, 3) float intrinsics of the view.
-            features: float maps (B, C_j, h_j, w_j), all covering the full (H, W) view.
-            image_size: (H, W) of the view.
-
-        Returns:
-            (B, V, sum_j C_j) float; vertices projecting outside the image read the border features.
-        """
-        uv = camera_to_pixel(verts, K, min_depth=1e-3)  # (B, V, 2)
-        grid = pixel_to_grid(uv, image_size)[:, :, None, :]  # (B, V, 1, 2)
-        pooled = [
-            F.grid_sample(f, grid.to(f.dtype), mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
-            for f in features
-        ]  # each (B, C_j, V)
-        return torch.cat(pooled, dim=1).transpose(1, 2)
+        return F.relu((x + h).mul_(0.5), inplace=True)
 
 
 class DeformationBlock(nn.Module):
@@ -196,10 +297,10 @@ class DeformationBlock(nn.Module):
             self.conv_out.neighbour_linear.weight.mul_(0.01)
 
     def forward(
-        self, g: Tensor, verts: Tensor, edges: Tensor, neighbours: Tensor | None = None
+        self, g: GraphInput, verts: Tensor, edges: Tensor, neighbours: Tensor | NeighbourOperator | None = None
     ) -> tuple[Tensor, Tensor]:
-        """Args: g (B, V, C_in) float; verts (B, V, 3) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse or
-        None (see ``GraphConv``).
+        """Args: g (B, V, C_in) float, or its parts (see ``GraphConv``); verts (B, V, 3) float; edges (E, 2) int64;
+        neighbours (B*V, B*V) sparse, a ``NeighbourOperator`` or None (see ``GraphConv``).
 
         Returns: new vertices (B, V, 3) float and hidden features (B, V, hidden) float.
         """
@@ -242,7 +343,7 @@ class MeshDeformer(nn.Module):
         self.aggregate = aggregate
         # neighbour operators of the template's levels, built on first use per (level, batch size, device): the edges
         # never change, so a training step reuses them instead of rebuilding (and re-validating) three per forward
-        self._neighbours: dict[tuple[int, int, torch.device], Tensor] = {}
+        self._neighbours: dict[tuple[int, int, torch.device], NeighbourOperator] = {}
         perceptual = int(sum(feature_channels))
         self.stages = nn.ModuleList(
             [
@@ -251,20 +352,27 @@ class MeshDeformer(nn.Module):
             ]
         )
 
-    def _level_neighbours(self, level: int, batch_size: int) -> Tensor:
-        """The cached ``neighbour_matrix`` of template level ``level`` for ``batch_size`` meshes (B*V, B*V)."""
+    def _level_neighbours(self, level: int, batch_size: int) -> NeighbourOperator:
+        """The cached ``neighbour_operator`` of template level ``level`` for ``batch_size`` meshes (B*V, B*V)."""
         edges = self.template.edges(level)
         key = (level, batch_size, edges.device)
         if key not in self._neighbours:
             V = self.template.verts(level).shape[0]
-            self._neighbours[key] = neighbour_matrix(edges, V, self.aggregate, batch_size)
+            self._neighbours[key] = neighbour_operator(edges, V, self.aggregate, batch_size)
         return self._neighbours[key]
 
     def _deform(
-        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
+        self,
+        s: int,
+        block: nn.Module,
+        g: list[Tensor | PerceptualSample],
+        x: Tensor,
+        edges: Tensor,
+        neighbours: NeighbourOperator,
     ) -> tuple[Tensor, Tensor]:
-        """Run deformation block ``s`` on ``g_v`` (B, V_s, C) at vertices x (B, V_s, 3): new vertices and hidden
-        features. Subclasses that give the blocks more per-vertex input override this (the loop stays here)."""
+        """Run deformation block ``s`` on ``g_v`` (B, V_s, C), given as its parts ([f_v,] x_v, the perceptual sample),
+        at vertices x (B, V_s, 3): new vertices and hidden features. Subclasses that give the blocks more per-vertex
+        input override this (the loop stays here)."""
         return block(g, x, edges, neighbours)
 
     def forward(self, features: Sequence[Tensor], K: Tensor, image_size: tuple[int, int]) -> dict[str, list[Tensor]]:
@@ -290,9 +398,9 @@ class MeshDeformer(nn.Module):
                 x = unpool_features(x, parent)
                 hidden = unpool_features(hidden, parent)
             edges = self.template.edges(s)
-            pooled = self.pool(x, K, features, image_size)  # (B, V_s, sum C)
-            parts = [x, pooled] if hidden is None else [hidden, x, pooled]
-            g = torch.cat(parts, dim=-1)  # paper eq. 13 (no label): g_v = concat(f_v, x_v, proj(f_p))
+            pooled = self.pool.sample(x, K, features, image_size)  # (B, V_s, sum C), sampled by the block's conv_in
+            # paper eq. 13 (no label): g_v = concat(f_v, x_v, proj(f_p)), handed over as its parts
+            g = [x, pooled] if hidden is None else [hidden, x, pooled]
             neighbours = self._level_neighbours(s, B)  # one operator for all the level's convs
             new_x, hidden = self._deform(s, block, g, x, edges, neighbours)
             out["verts_before"].append(x)

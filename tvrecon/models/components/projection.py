@@ -47,11 +47,13 @@ def camera_to_pixel(points_cam: Tensor, K: Tensor, min_depth: float = 1e-6) -> T
     check_shape(K, "(B, 3, 3)", "K")
     if K.shape[0] != points_cam.shape[0]:
         raise ValueError(f"K must have shape (B, 3, 3) with B={points_cam.shape[0]}, got {tuple(K.shape)}")
+    points_cam = points_cam.to(torch.promote_types(points_cam.dtype, torch.float32))  # pixels need float32 or more
     z = points_cam[..., 2:].clamp(min=min_depth)
     safe = torch.cat([points_cam[..., :2], z], dim=-1)
     n = safe.shape[1]
     Kn = K.to(safe.dtype)[:, None].expand(-1, n, -1, -1)  # (B, N, 3, 3)
-    return project_points(safe, Kn)
+    with torch.autocast(safe.device.type, enabled=False):  # bfloat16 would put a 128 px view's pixels 0.5 px apart
+        return project_points(safe, Kn)
 
 
 def project_with_depth(points: Tensor, K: Tensor, RT: Tensor) -> tuple[Tensor, Tensor]:

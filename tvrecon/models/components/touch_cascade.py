@@ -26,7 +26,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import torch
 from torch import Tensor, nn
 
 from tvrecon.models.components.ellipsoid import unpool_features
@@ -97,10 +96,10 @@ class TouchCascadeDeformer(TouchResidualDeformer):
             self._carry = None
         elif self._carry is not None:
             self._carry = unpool_features(self._carry, self.template.parent_edges(s))
-        pooled = self.pool(y, K, features, image_size)  # (B, V_s, sum C): the image at the touched vertices
+        pooled = self.pool.sample(y, K, features, image_size)  # (B, V_s, sum C): the image at the touched vertices
         parts = [h_visual, y, pooled] if self._carry is None else [self._carry, h_visual, y, pooled]
         new_y, self._carry = self.touch_stages[s](
-            torch.cat(parts, dim=-1),
+            parts,
             y,
             self.template.edges(s),
             self._level_neighbours(s, y.shape[0]),

@@ -28,7 +28,7 @@ from torch import Tensor, nn
 
 from tvrecon.losses.chamfer import nearest_neighbors
 from tvrecon.models.components.backbone import ResNet18Backbone
-from tvrecon.models.components.gcn import DeformationBlock, MeshDeformer
+from tvrecon.models.components.gcn import DeformationBlock, GraphInput, MeshDeformer, NeighbourOperator
 from tvrecon.models.components.reconstructor import check_view
 from tvrecon.utils.geometry import rotate_to_camera, world_to_camera
 from tvrecon.utils.shape_check import check_shape
@@ -128,20 +128,32 @@ def touch_features(verts: Tensor, touch: TouchPoints, sigmas: Sequence[float]) -
         )
     if not sigmas or any(not float(s) > 0 for s in sigmas):
         raise ValueError(f"sigmas must be positive length scales, got {list(sigmas)}")
-    with torch.no_grad():
+    with torch.no_grad(), torch.autocast(verts.device.type, enabled=False):  # distances need float32
         v = verts.detach().float()
         p = touch.points.detach().float()
         n = touch.normals.detach().float()
         mask = touch.mask[:, None, :]  # (B, 1, P)
         has = touch.mask.any(1)[:, None, None]  # (B, 1, 1)
-        d2 = ((v[:, :, None, :] - p[:, None, :, :]) ** 2).sum(-1)  # (B, V, P)
+        # |v - p|^2 = |v|^2 + |p|^2 - 2 v.p about the points' centre: one batched product, never a (B, V, P, 3) block
+        real = touch.mask[..., None].float()  # (B, P, 1)
+        centre = (p * real).sum(1, keepdim=True) / real.sum(1, keepdim=True).clamp_min(1.0)  # (B, 1, 3) real points
+        vc, pc = v - centre, p - centre
+        d2 = torch.baddbmm(pc.square().sum(-1)[:, None, :], vc, pc.transpose(1, 2), alpha=-2.0)  # (B, V, P)
+        d2 = d2.add_(vc.square().sum(-1, keepdim=True)).clamp_min_(0.0)
+        keep = mask | ~has  # (B, 1, P): the real points; every point where a sample has none (uniform junk, zeroed)
         out = []
         for sigma in sigmas:
-            logits = (-d2 / (2.0 * float(sigma) ** 2)).masked_fill(~mask, -math.inf)  # (B, V, P)
-            a = torch.softmax(logits.masked_fill(~has, 0.0), dim=-1)  # (B, V, P); uniform junk where no point
+            logits = (d2 * (-0.5 / float(sigma) ** 2)).masked_fill_(~keep, -math.inf)  # (B, V, P)
+            top = logits.amax(dim=-1, keepdim=True)  # (B, V, 1)
+            # float32 exp leaves its vectorised path below about -87 (about 6x slower on this work); terms that small
+            # (under 2e-38 of the largest) are raised to exp(-87) and the masked points put back to exactly 0
+            e = torch.exp((logits - top).clamp_min_(-87.0)).masked_fill_(~keep, 0.0)  # (B, V, P)
+            total = e.sum(dim=-1, keepdim=True)  # (B, V, 1)
+            a = e / total  # (B, V, P) the softmax over the points
+            lse = top + torch.log(total)  # (B, V, 1) logsumexp of the logits
             offset = a @ p - v  # (B, V, 3)
             normal = a @ n  # (B, V, 3)
-            density = 1.0 - torch.exp(-torch.exp(torch.logsumexp(logits, dim=-1, keepdim=True)))  # (B, V, 1)
+            density = 1.0 - torch.exp(-torch.exp(lse))  # (B, V, 1)
             out += [offset, normal, density.nan_to_num(0.0)]
         feats = torch.cat(out, dim=-1)  # (B, V, 7 S)
         feats = torch.where(has, feats, torch.zeros_like(feats))
@@ -182,14 +194,16 @@ class TouchDeformationBlock(DeformationBlock):
         self.touch_in = nn.ModuleList([nn.Linear(touch_channels, hidden) for _ in range(num_blocks)])
 
     def forward(  # type: ignore[override]
-        self, g: Tensor, verts: Tensor, edges: Tensor, neighbours: Tensor, touch: Tensor
+        self, g: GraphInput, verts: Tensor, edges: Tensor, neighbours: Tensor | NeighbourOperator, touch: Tensor
     ) -> tuple[Tensor, Tensor]:
-        """Args: g (B, V, C_in) float; verts (B, V, 3); edges (E, 2) int64; neighbours (B*V, B*V) sparse;
-        touch (B, V, F) float touch features.
+        """Args: g (B, V, C_in) float, or its parts (see :class:`~tvrecon.models.components.gcn.GraphConv`); verts
+        (B, V, 3); edges (E, 2) int64; neighbours (B*V, B*V) sparse or a ``NeighbourOperator``; touch (B, V, F) float
+        touch features.
 
         Returns: new vertices (B, V, 3) float and hidden features (B, V, hidden) float.
         """
-        h = F.relu(self.conv_in(torch.cat([g, touch], dim=-1), edges, neighbours))
+        parts = [g] if isinstance(g, Tensor) else list(g)
+        h = F.relu(self.conv_in([*parts, touch], edges, neighbours))
         for block, inject in zip(self.blocks, self.touch_in, strict=True):
             h = block(h + inject(touch), edges, neighbours)
         return verts + self.conv_out(h, edges, neighbours), h
@@ -252,7 +266,7 @@ class TouchGeometryDeformer(MeshDeformer):
             self._touch = None
 
     def _deform(
-        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
+        self, s: int, block: nn.Module, g: GraphInput, x: Tensor, edges: Tensor, neighbours: NeighbourOperator
     ) -> tuple[Tensor, Tensor]:
         """Block ``s`` with the touch features of its input vertices x (B, V_s, 3) (see :func:`touch_features`)."""
         assert self._touch is not None, "TouchGeometryDeformer._deform runs inside forward only"

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from tvrecon.models.components.ellipsoid import unpool_features
-from tvrecon.models.components.gcn import GraphConv, GResBlock, MeshDeformer
+from tvrecon.models.components.gcn import GraphConv, GraphInput, GResBlock, MeshDeformer, NeighbourOperator
 from tvrecon.models.components.touch_geometry import FEATURES_PER_SCALE, TouchPoints, touch_features
 
 __all__ = ["TouchCorrectionBlock", "TouchResidualDeformer", "zero_offset"]
@@ -60,8 +60,8 @@ class TouchCorrectionBlock(nn.Module):
         self.blocks = nn.ModuleList([GResBlock(hidden, aggregate) for _ in range(num_blocks)])
         self.conv_out = zero_offset(GraphConv(hidden, 3, aggregate))
 
-    def forward(self, g: Tensor, edges: Tensor, neighbours: Tensor) -> Tensor:
-        """Args: g (B, V, C_in) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse.
+    def forward(self, g: Tensor, edges: Tensor, neighbours: Tensor | NeighbourOperator) -> Tensor:
+        """Args: g (B, V, C_in) float; edges (E, 2) int64; neighbours (B*V, B*V) sparse or a ``NeighbourOperator``.
 
         Returns: (B, V, 3) float offset to add to the stage's corrected mesh.
         """
@@ -135,7 +135,7 @@ class TouchResidualDeformer(MeshDeformer):
         return self.touch_stages[s](g, self.template.edges(s), self._level_neighbours(s, y.shape[0]))
 
     def _deform(
-        self, s: int, block: nn.Module, g: Tensor, x: Tensor, edges: Tensor, neighbours: Tensor
+        self, s: int, block: nn.Module, g: GraphInput, x: Tensor, edges: Tensor, neighbours: NeighbourOperator
     ) -> tuple[Tensor, Tensor]:
         """The plain Pixel2Mesh block; its hidden feature is kept for the touch path."""
         new_x, hidden = block(g, x, edges, neighbours)
