@@ -18,7 +18,8 @@ the loss of the mixed-precision step. ``--split`` also times today's step part b
 ``--loader <preset>`` measures how long each real step waits for that preset's train loader at each ``--workers``
 count (it reads the preset's cache). ``--out`` writes the figures as JSON (atomic).
 
-    .venv/bin/python benchmarks/bench_train_step.py --threads 1 --repeats 5 [--modes full visual_only touch_geometry]
+    .venv/bin/python -m benchmarks.speed.bench_train_step --threads 1 --repeats 5 \
+        [--modes full visual_only touch_geometry]
         [--split] [--loader paper_cpu --workers 0 1 2] [--out results/bench/train_step/<machine>-<date>.json]
 """
 
@@ -39,25 +40,22 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import hydra
 import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+from torch.utils.flop_counter import FlopCounterMode
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchmarks.speed.reference_train import BASELINE, old_step
+from tvrecon.losses.chamfer import chamfer_terms, nearest_neighbors
+from tvrecon.losses.mesh import edge_length_loss, laplacian_loss, normal_loss
+from tvrecon.models.components.ellipsoid import unpool_features
+from tvrecon.models.lit_recon import ReconstructionModule
+from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches
+from tvrecon.utils.atomic import atomic_write_text
+
+ROOT = Path(__file__).resolve().parents[2]
 os.environ.setdefault("PROJECT_ROOT", str(ROOT))
-
-import hydra  # noqa: E402
-from hydra import compose, initialize_config_dir  # noqa: E402
-from omegaconf import DictConfig  # noqa: E402
-from reference_train import BASELINE, old_step  # noqa: E402
-from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
-
-from tvrecon.losses.chamfer import chamfer_terms, nearest_neighbors  # noqa: E402
-from tvrecon.losses.mesh import edge_length_loss, laplacian_loss, normal_loss  # noqa: E402
-from tvrecon.models.components.ellipsoid import unpool_features  # noqa: E402
-from tvrecon.models.lit_recon import ReconstructionModule  # noqa: E402
-from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches  # noqa: E402
-from tvrecon.utils.atomic import atomic_write_text  # noqa: E402
 
 MODES = ("full", "visual_only", "touch_geometry")
 
@@ -220,7 +218,7 @@ def bench_mode(mode: str, batch: dict, repeats: int, precision: str, baseline: s
 class SparseAwareFlopCounter(FlopCounterMode):
     """``FlopCounterMode`` that counts a sparse-dense product as what it computes (2 nnz x columns), not as dense."""
 
-    def _count_flops(self, func_packet, out, args, kwargs):  # noqa: ANN001, ANN202
+    def _count_flops(self, func_packet, out, args, kwargs):
         sparse = [a for a in args if isinstance(a, torch.Tensor) and a.layout != torch.strided]
         if func_packet in (torch.ops.aten.mm, torch.ops.aten.addmm) and sparse:
             flops = 2 * sparse[0]._nnz() * out.shape[-1]
@@ -323,7 +321,7 @@ def step_split(mode: str, batch: dict, precision: str, repeats: int = 2) -> list
             with torch.no_grad(), autocast(precision):
                 hidden = stage_hidden(deformer, s, features, K, size, touch)
 
-        def stage(s: int = s, block: torch.nn.Module = block, x: torch.Tensor = x, hidden=hidden) -> None:  # noqa: ANN001
+        def stage(s: int = s, block: torch.nn.Module = block, x: torch.Tensor = x, hidden=hidden) -> None:
             h = None if hidden is None else leaf(hidden)
             with autocast(precision):
                 pooled = deformer.pool.sample(x, K, features, size)
@@ -363,7 +361,7 @@ def empty_touch(K: torch.Tensor) -> object:
 
 def stage_hidden(
     deformer: torch.nn.Module, s: int, features: list, K: torch.Tensor, size: tuple, touch
-) -> torch.Tensor:  # noqa: ANN001
+) -> torch.Tensor:
     """The hidden feature stage ``s`` reads (stage s-1's, unpooled), from a forward of the stages before it."""
     B = K.shape[0]
     x = deformer.template.verts(0).to(K.dtype)[None].expand(B, -1, -1)

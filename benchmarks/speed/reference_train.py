@@ -23,8 +23,10 @@ from pathlib import Path
 import tvrecon.losses.mesh as mesh_losses
 from tvrecon.models.components import gcn, touch_geometry
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BASELINE = "487a852"
+# modules renamed after BASELINE that its files import
+_RENAMED_MODULES = {"tvrecon.utils.shapes": "tvrecon.utils.shape_check"}
 
 # (module of today, attribute path, module file of the old commit, attribute path there)
 _SWAPS = (
@@ -61,6 +63,8 @@ def load_old_module(commit: str, path: str) -> types.ModuleType:
         ).stdout
     except (OSError, subprocess.CalledProcessError) as err:
         raise ValueError(f"cannot read {path} at commit {commit} with git (run from a git checkout): {err}") from err
+    for before, after in _RENAMED_MODULES.items():  # modules renamed since: the old file imports today's
+        source = source.replace(f"from {before} import", f"from {after} import")
     name = f"_tvrecon_{commit}_{path.replace('/', '_').removesuffix('.py')}"
     module = types.ModuleType(name)
     module.__file__ = f"{commit}:{path}"

@@ -17,7 +17,7 @@ OPTIONAL = {"taichi", "mujoco", "pybullet"}  # benchmark-only or extra engines, 
 
 # scripts that still put a folder on sys.path: the two physics benchmarks read the physics checks from tests/sim until
 # those live in the package, and the training-step benchmark its reference module; empty this set as they are fixed
-PATH_EDITS_PENDING = {"bench_train_step.py"}
+PATH_EDITS_PENDING: set[str] = set()
 
 SCRIPTS = sorted(p for kind in KINDS for p in (BENCHMARKS / kind).glob("*.py") if p.name != "__init__.py")
 
