@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import io
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,7 @@ from tvrecon.sim.sensor.elastic_pad import SensorConfig
 from tvrecon.sim.sensor.presets import SENSOR_PRESETS
 from tvrecon.utils.atomic import atomic_write_bytes
 from tvrecon.utils.cli_errors import call_cli
-from tvrecon.utils.output_dir import OUTPUTS, announce, output_dir
+from tvrecon.utils.output_dir import OUTPUTS, announce, check_writable_dir, output_dir
 
 SENSOR_PRESET_NAMES = tuple(SENSOR_PRESETS)
 PROG = "python -m tvrecon.sim"
@@ -115,20 +114,7 @@ def check_outputs(args: argparse.Namespace) -> Path:
             f"--marker-spacing, --marker-radius and --height-gain must be > 0, got {args.marker_spacing}, "
             f"{args.marker_radius} and {args.height_gain}"
         )
-    out = output_dir(args.out, TOOL)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file: give a folder (it will hold tactile.png, reading.npz, ...)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out):  # the real test: permissions, read-only file systems, quotas
-            pass
-    except (FileExistsError, NotADirectoryError) as err:
-        raise ValueError(f"--out {out} cannot be a folder: a part of its path is a file ({err})") from err
-    except OSError as err:
-        raise ValueError(
-            f"--out {out} is not writable ({err.strerror or err}): choose a folder you can write to"
-        ) from err
-    return out
+    return check_writable_dir(output_dir(args.out, TOOL), "--out ")
 
 
 def run_press(args: argparse.Namespace) -> dict[str, Path]:
