@@ -133,6 +133,40 @@ def test_the_checks_can_fail() -> None:
     assert CHOICE.findall("train.py experiment=full,visual_only data.x=1") == [("experiment", "full,visual_only")]
 
 
+# ------------------------------------------------------------------ the Python snippets
+
+#: pages whose Python snippets run as they are (the others need a file of the reader's, e.g. a MuJoCo model)
+RUNNABLE_SNIPPETS = (
+    "docs/guides/simulator.md",
+    "docs/guides/sensor-outputs.md",
+    "docs/reference/simulator-contract.md",
+)
+
+
+def _snippets(page: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", page.read_text(encoding="utf-8"), re.S)
+
+
+def test_snippets_use_no_undefined_names(tmp_path: Path) -> None:
+    """Every Python snippet of README and docs passes ``ruff --select F821,F811`` (no undefined name)."""
+    files = []
+    for page in _pages():
+        for i, code in enumerate(_snippets(page)):
+            files.append(tmp_path / f"{page.stem}_{i}.py")
+            files[-1].write_text(code)
+    assert files, "no Python snippet found"
+    ruff = [sys.executable, "-m", "ruff", "check", "--no-cache", "--isolated", "--select", "F821,F811"]
+    done = subprocess.run([*ruff, *map(str, files)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout[-3000:]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("page", RUNNABLE_SNIPPETS)
+def test_snippets_run(page: str, one_thread) -> None:
+    for code in _snippets(ROOT / page):
+        exec(compile(code, f"{page} snippet", "exec"), {"__name__": "snippet"})
+
+
 # ------------------------------------------------------------------ the README's user-path commands
 
 #: placeholders of the README's commands -> what the tiny run uses instead ({tmp}: the test's folder)
