@@ -273,6 +273,31 @@ def test_long_commands_compose(command: str) -> None:
         compose(config_name=config, overrides=overrides)
 
 
+def _docs_train_commands() -> list[str]:
+    """``train.py`` command lines of the docs pages' bash blocks (one line each, placeholders left out)."""
+    commands = set()
+    for page in _pages():
+        for block in re.findall(r"```bash\n(.*?)```", page.read_text(encoding="utf-8"), re.S):
+            for line in block.replace("\\\n", " ").splitlines():
+                line = line.split(" #", 1)[0].strip()
+                if re.match(r"(\.venv/bin/)?python train\.py ", line) and "<" not in line:
+                    commands.add(line)
+    return sorted(commands)
+
+
+@pytest.mark.parametrize("command", _docs_train_commands())
+def test_docs_train_commands_compose(command: str) -> None:
+    """Every ``train.py`` command of the docs composes: its experiment, data preset and overridden keys exist."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    overrides = [o for o in _first_values(shlex.split(command)[2:]) if not o.startswith("hydra")]
+    overrides = [o for o in overrides if "glob(" not in o]
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
+        compose(config_name="train", overrides=overrides)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("command,extra", sorted(TINY.items()))
 def test_tiny_commands_run(command: str, extra: list[str], tmp_path: Path) -> None:
