@@ -30,8 +30,14 @@ ROOT = Path(__file__).resolve().parents[2]
 HOUSE = "the house moves"
 #: the results branch: one page per paper table, linked from the README's headline block
 RESULTS = "the results pages"
-#: name or path as the docs write it -> (what adds it, the present name it replaces or None)
+#: the chart branch: the Chart-based method of Table 3
+CHART = "the Chart-based experiments"
+#: name, path or config choice as the docs write it -> (what adds it, the present name it replaces or None)
 PENDING: dict[str, tuple[str, str | None]] = {
+    "experiment=chart_based": (CHART, None),
+    "experiment=chart_based_predicted": (CHART, None),
+    "experiment=chart_based_visual": (CHART, None),
+    "experiment=chart_based_tactile": (CHART, None),
     "docs/reproduce/table1.md": (RESULTS, None),
     "docs/reproduce/table2.md": (RESULTS, None),
     "docs/reproduce/table3.md": (RESULTS, None),
@@ -136,7 +142,8 @@ def test_config_choices_exist() -> None:
                 continue
             folder = ROOT / "configs" / GROUP_DIR.get(group, group)
             for choice in value.split(","):
-                if choice and not (folder / f"{choice}.yaml").is_file():
+                ok = (folder / f"{choice}.yaml").is_file()
+                if choice and not _check_pending(f"{group}={choice}", ok, problems) and not ok:
                     where = page.relative_to(ROOT)
                     problems.append(f"{group}={choice} in {where}: no configs/{folder.name}/{choice}.yaml")
     assert not problems, "\n".join(sorted(set(problems)))
