@@ -3,12 +3,12 @@
     python examples/robot_mujoco_pad.py --object sphere --out outputs/mujoco_pad
     python examples/robot_mujoco_pad.py --object capsule --pad digit --steps 400
 
-The pad is a box geom on a mocap body; ``tvrecon.robot.mujoco_sensor.TactileSensor`` turns it into a tactile sensor
-(as TACTO's ``add_body`` does): at each step it reads MuJoCo's contacts of that geom and, when they change, presses
-the touched geom's own surface with the EIP simulator, as deep as MuJoCo's overlap (``use_penetration=True``); one
-batched press serves all pads of a step (``tvrecon.robot.pad.sense_pads``). Headless (``MUJOCO_GL=egl`` unless
-set). Writes into ``--out``: ``tactile.png`` (the last reading's displacement), ``rgb.png`` (its GelSight-style
-image), ``force_N.csv`` (the normal force at each step) and ``summary.json``.
+The pad is a box geom on a mocap body; ``tvrecon.robot.mujoco_sensor.TactileSensor`` turns it into a tactile sensor (as
+TACTO's ``add_body`` does): at each step it reads MuJoCo's contacts of that geom and, when they change, presses the
+touched geom's own surface with the EIP simulator, as deep as MuJoCo's overlap (``use_penetration=True``); with several
+pads, ``sense_pads`` reads them all in one batched press (``docs/guides/robots.md``). Headless (``MUJOCO_GL=egl`` unless
+set). Writes into ``--out``: ``tactile.png`` (the last reading's displacement), ``rgb.png`` (its GelSight-style image),
+``force_N.csv`` (the normal force at each step) and ``summary.json``.
 """
 
 from __future__ import annotations
@@ -24,9 +24,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # read once by mujoco at import: keep
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from tvrecon.robot import PadConfig  # noqa: E402
 from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
-from tvrecon.robot.pad import sense_pads  # noqa: E402
-from tvrecon.robot.pad_config import PadConfig  # noqa: E402
 from tvrecon.sim.plots import save_rgb_png, save_tactile_png  # noqa: E402
 from tvrecon.utils.atomic import atomic_write_text  # noqa: E402
 from tvrecon.utils.cli_errors import run_cli  # noqa: E402
@@ -85,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         frac = min(1.0, step / (0.7 * args.steps))  # descend over 70% of the steps, then hold
         data.mocap_pos[0] = [0.0, 0.0, start + (lowest - start) * frac]
         mujoco.mj_step(model, data)
-        reading = sense_pads([sensor])[0]
+        reading = sensor.sense()
         forces.append(float(reading.force))
     out = args.out or Path("outputs/robot_mujoco_pad") / time.strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
