@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench sim-demo clean
+.PHONY: demo test lint bench sim-demo docs clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	# torch first and pinned: the local CPU-usable wheels, never a fresh multi-GB download by a resolver. The x86_64
 	# 2.14.1 wheel is a CUDA build: ~5.6 GB in .venv. --no-cache-dir: no second copy of the downloads in ~/.cache/pip
 	$(BIN)/pip install --quiet --no-cache-dir torch==2.14.1 torchvision==0.29.1
-	$(BIN)/pip install --quiet --no-cache-dir -e '.[dev,robot,mujoco]'
+	$(BIN)/pip install --quiet --no-cache-dir -e '.[dev,robot,mujoco,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -24,6 +24,9 @@ sim-demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
@@ -31,4 +34,4 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run
 
 clean:
-	rm -rf outputs multirun lightning_logs .pytest_cache
+	rm -rf outputs multirun lightning_logs .pytest_cache site

@@ -2,7 +2,7 @@
 
     python train.py experiment=smoke                                  # tiny data on CPU, ends by printing the tables
     python train.py experiment=<name> data=<tiny|small|paper> trainer=<cpu|gpu|ddp>
-    python train.py -m 'experiment=glob(*,exclude=[smoke,classify])' data=paper trainer=gpu   # all ablations
+    python train.py -m 'experiment=glob(*,exclude=[smoke,classify*])' data=paper trainer=gpu   # every recon model
     python train.py experiment=full ckpt_path=logs/train/runs/<time>/checkpoints/last.ckpt   # resume
     python train.py hparams_search=lr_wd                              # grid search with the basic sweeper
     python train.py experiment=touch_cascade init_from=<visual run>/checkpoints/last.ckpt 'freeze=[net.visual]'

@@ -48,7 +48,7 @@ def test_paper_presets_match_table1():
 
 
 def test_cls_paper_cpu_has_table1_sizes_and_many_objects_per_class():
-    """The CPU classification preset (issue 12): Table 1's image counts, a validation split, 15-16 train and 4-5
+    """The CPU classification preset: Table 1's image counts, a validation split, 15-16 train and 4-5
     test objects of every class (none shared between splits), tactile maps at the pad's resolution, the paper's
     touches."""
     cfg = compose_preset("cls_paper_cpu", ["cache_dir=null"])
@@ -70,7 +70,7 @@ def test_cls_paper_cpu_has_table1_sizes_and_many_objects_per_class():
 
 
 def test_paper_cpu_has_table1_reconstruction_sizes():
-    """The CPU reconstruction preset at Table 1's size (issue 24): train on all 35 classes (650 views, 6,500 tactile
+    """The CPU reconstruction preset at Table 1's size: train on all 35 classes (650 views, 6,500 tactile
     images), test on the 10 reconstruction classes (50 / 500), small's pad, grid and views, the paper's touches; the
     checkpoint is chosen on validation objects of the 10 test classes, none shared with train or test."""
     cfg = compose_preset("paper_cpu", ["cache_dir=null"])

@@ -306,7 +306,7 @@ def test_patch_min_push_keeps_the_deeper_pushed_points_of_the_same_cache_entry(r
 
 
 def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
-    """Issue 14 case 14: `sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
+    """`sensor.E=3` and `sensor.E=3.0` gave different cache keys (identical data regenerated)."""
     from tvrecon.data.cache.store import cache_key
     from tvrecon.sim.sensor import SensorConfig
     from tvrecon.utils.config_utils import coerce_config
@@ -318,7 +318,7 @@ def test_int_and_float_sensor_numbers_give_one_cache_key() -> None:
 
 
 def test_cached_label_follows_the_class_name_when_the_class_list_changes(tmp_path: Path) -> None:
-    """Issue 14 case 3: entries cached before a class was added kept their old integer label (now another class)."""
+    """entries cached before a class was added kept their old integer label (now another class)."""
     before = ObjectLibrary(classes=["cube", "torus"])
     after = ObjectLibrary(classes=["bottle", "cube", "torus"])  # a class added in front: every label shifts by one
     ds = classif(tmp_path, num_objects=1, classes=["torus"], touches_per_object=1, num_touches=1, library=before)

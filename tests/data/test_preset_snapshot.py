@@ -3,13 +3,13 @@
 ``fixtures/data_presets.json`` holds, for every preset of ``configs/data/``, the resolved ``data`` node as train.py
 composes it (``data=<preset>`` in ``configs/train.yaml``) and as ``python -m tvrecon.data.generate`` composes it
 (:func:`tvrecon.data.presets.compose_preset`), plus the ``data`` node of every experiment. It was written before the
-presets were split into config groups (issue 16 item 6), so the composed presets are proven to give the same values.
-The one intended difference is ``touch._target_``, added when touch policies became pluggable (issue 16 item 5): it
-names the default policy, whose cache key it does not enter. Presets added later (``cls_paper_cpu``, issue 12) were
+presets were split into config groups, so the composed presets are proven to give the same values.
+The one intended difference is ``touch._target_``, added when touch policies became pluggable: it
+names the default policy, whose cache key it does not enter. Presets added later (``cls_paper_cpu``) were
 written into the fixture the same way, without ``touch._target_``, and their other presets' entries left untouched
-(``paper_cpu``, issue 24: Table 1's reconstruction sizes on ``small``'s geometry, likewise without ``press.compile``
+(``paper_cpu``: Table 1's reconstruction sizes on ``small``'s geometry, likewise without ``press.compile``
 and ``device_tactile_size``).
-The fixture was rewritten on purpose when the presets moved to the paper's touches (issue 24: ``touch/paper_sweep``,
+The fixture was rewritten on purpose when the presets moved to the paper's touches (``touch/paper_sweep``,
 the ``eip*`` pads and grids, the library's ``protocol``, cache version ``tvrecon-data-5``). ``press.collider_refine: 2``
 was then added to ``press/eip_cpu`` (the object's table at the authors' spacing, so that thin parts are felt on the 64
 grid): the presets on that block (``small``, ``cls_paper_cpu``, ``cls_sweep_cpu`` and their experiments) gained the key
@@ -125,9 +125,9 @@ def test_preset_list_is_pinned():
     assert preset_names() == PRESETS
 
 
-#: Keys added to every preset on purpose since the fixture was written (rewritten for the paper's touches, issue 24),
-#: with their value: ``press.compile`` (base/common.yaml, issues 25/27: the fused kernels as a config field, outside
-#: the cache key, so the pinned keys hold; ``auto`` since issue 27 made the fast path the default) and
+#: Keys added to every preset on purpose since the fixture was written (rewritten for the paper's touches),
+#: with their value: ``press.compile`` (base/common.yaml: the fused kernels as a config field, outside
+#: the cache key, so the pinned keys hold; ``auto`` makes the fast path the default) and
 #: ``device_tactile_size`` (base/common.yaml: the tactile resize after the transfer to a GPU, a datamodule setting
 #: that no dataset and no cache key sees). A key is its path in the ``data`` node.
 ADDED: dict[tuple[str, ...], Any] = {("press", "compile"): "auto", ("device_tactile_size",): None}

@@ -15,14 +15,6 @@ from tvrecon.data.views import render_view, sample_camera
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def _sim_available() -> bool:
-    try:
-        from tvrecon.sim.press import EIPSimulator  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def test_draw_and_atomic_save(tmp_path) -> None:
     mesh = trimesh.creation.torus(0.3, 0.12)
     cam = sample_camera(0, image_size=64)
@@ -47,7 +39,6 @@ def test_draw_and_atomic_save(tmp_path) -> None:
         draw_preview(view["image"], cam, tt.positions, tt.directions, tactile[:2])
 
 
-@pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")
 @pytest.mark.slow
 def test_cli_writes_png(tmp_path, capsys) -> None:
     out = tmp_path / "preview.png"

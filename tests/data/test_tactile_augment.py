@@ -1,4 +1,4 @@
-"""rotate_tactile: grid and shear vectors turned together, in the simulator's pixel convention (issue 12.3)."""
+"""rotate_tactile: grid and shear vectors turned together, in the simulator's pixel convention."""
 
 import math
 

@@ -32,7 +32,7 @@ def test_cli_press_writes_all_files(tmp_path: Path) -> None:
 
 def test_cli_contact_and_threshold_grid_follow_the_press_defaults(capsys) -> None:
     """Without the flags the CLI presses as ``PressConfig()`` does; ``--contact grid --threshold-grid 0`` is the
-    press before issue 15 item 1 (grid collider, threshold in the press's own cells)."""
+    press of ``PressConfig(contact="grid", threshold_grid=None)`` (grid collider, threshold in its own cells)."""
     parse = lambda *extra: build_parser().parse_args(["press", "--out", "o", *extra])  # noqa: E731
     args = parse()
     assert (args.contact, args.threshold_grid) == (PressConfig().contact, PressConfig().threshold_grid)
@@ -77,7 +77,7 @@ def test_cli_torus_from_the_object_library_and_bad_input(tmp_path: Path, capsys)
 
 
 def test_cli_ply_zero_writes_no_ply(tmp_path: Path) -> None:
-    """Issue 14 case 5: `--ply 0` wrote every frame's .ply (pick[-0:] is the whole list)."""
+    """`--ply 0` wrote every frame's .ply (pick[-0:] is the whole list)."""
     out = tmp_path / "run"
     args = ["press", "--shape", "sphere", "--direction", "0", "0", "-1", "--out", str(out)]
     args += ["--resolution", "6", "--layers", "3", "--n-grid", "32", "--depth", "0.5", "--frames", "2", "--ply", "0"]
@@ -87,7 +87,7 @@ def test_cli_ply_zero_writes_no_ply(tmp_path: Path) -> None:
 
 
 def test_cli_rejects_nan_vertices_like_the_api(tmp_path: Path, capsys) -> None:
-    """Issue 14 case 2: the CLI pressed a mesh with a NaN vertex (trimesh dropped it) that the API rejects."""
+    """The CLI pressed a mesh with a NaN vertex (trimesh dropped it) that the API rejects."""
     mesh = trimesh.creation.box()
     verts = np.asarray(mesh.vertices).copy()
     verts[0, 0] = np.nan
@@ -111,7 +111,7 @@ def test_cli_rejects_nan_vertices_like_the_api(tmp_path: Path, capsys) -> None:
 def test_cli_checks_outputs_before_simulating(
     extra: list[str], message: str, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Issue 14 case 12: a bad --out or --frames 0 failed only after the whole simulation (half the files written)."""
+    """A bad --out or --frames 0 failed only after the whole simulation (half the files written)."""
     import tempfile
 
     import tvrecon.sim.__main__ as cli
@@ -135,7 +135,7 @@ def test_cli_checks_outputs_before_simulating(
 
 
 def test_cli_unreadable_and_zero_size_meshes_are_clear_errors(tmp_path: Path, capsys) -> None:
-    """Issue 14 case 15: random bytes ended in a charset_normalizer import error, a 1e-9 mesh in ZeroDivisionError."""
+    """Random bytes ended in a charset_normalizer import error, a 1e-9 mesh in ZeroDivisionError."""
     garbage = tmp_path / "garbage.obj"
     garbage.write_bytes(np.random.default_rng(0).bytes(2000))
     base = ["press", "--out", str(tmp_path / "o"), "--n-grid", "32", "--resolution", "6"]
@@ -151,7 +151,7 @@ def test_cli_unreadable_and_zero_size_meshes_are_clear_errors(tmp_path: Path, ca
 
 
 def test_cli_sensor_outputs_write_pngs(tmp_path: Path, capsys) -> None:
-    """Issue 15 item 3: `--outputs force markers rgb` writes force.png, markers.png, rgb.png and outputs.png."""
+    """`--outputs force markers rgb` writes force.png, markers.png, rgb.png and outputs.png."""
     out = tmp_path / "run"
     args = ["press", "--shape", "sphere", "--direction", "0", "0", "-1", "--out", str(out), "--resolution", "8"]
     args += ["--layers", "3", "--n-grid", "32", "--depth", "0.5", "--frames", "1", "--ply", "0"]
@@ -166,7 +166,7 @@ def test_cli_sensor_outputs_write_pngs(tmp_path: Path, capsys) -> None:
 
 
 def test_cli_presses_an_open_box(tmp_path: Path, capsys) -> None:
-    """Issue 14 case 1: a box with two triangles removed, pressed with the CLI's defaults, gave contact=False."""
+    """A box with two triangles removed, pressed with the CLI's defaults, gave contact=False."""
     box = trimesh.creation.box()
     path = tmp_path / "open_box.obj"
     path.write_text(trimesh.Trimesh(box.vertices, box.faces[:10], process=False).export(file_type="obj"))
@@ -179,7 +179,7 @@ def test_cli_presses_an_open_box(tmp_path: Path, capsys) -> None:
 
 
 def test_cli_default_press_of_pybullet_duck(tmp_path: Path, capsys) -> None:
-    """Issue 14 case 6: the duck failed with "the pad would start inside the object" for the default direction
+    """The duck failed with "the pad would start inside the object" for the default direction
     (its surface rises under the pad above where the placement rays started)."""
     pybullet_data = pytest.importorskip("pybullet_data")
     duck = Path(pybullet_data.getDataPath()) / "duck.obj"

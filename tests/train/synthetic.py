@@ -1,4 +1,4 @@
-"""Test-only datamodules of random tensors with the documented batch shapes (docs/batch-schema.md).
+"""Test-only datamodules of random tensors with the documented batch shapes (docs/reference/batch-schema.md).
 
 Geometry is consistent: objects are spheres of random radius around the world origin, the camera sits at distance 2
 on the -z side looking at the origin (RT = [I | (0, 0, 2)]), touches are surface points with inward directions.

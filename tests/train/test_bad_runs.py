@@ -1,4 +1,4 @@
-"""Issue 28 item 5: one bad run does not stop the tables or the evaluation of the others.
+"""One bad run does not stop the tables or the evaluation of the others.
 
 ``tables`` skips a truncated ``metrics.json`` with a warning (as eval.py skips an unreadable checkpoint); eval.py
 skips a run folder without ``.hydra/config.yaml``, and a corrupt best checkpoint falls back to ``last.ckpt``.

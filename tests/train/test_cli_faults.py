@@ -1,4 +1,4 @@
-"""Issue 28: train.py / eval.py fail in one line with an exit code, and the silent cases fail loudly.
+"""Train.py / eval.py fail in one line with an exit code, and the silent cases fail loudly.
 
 Items 1 (one line, exit 2/1/130, --debug), 3 (limit_train_batches=0, a classifier on reconstruction data, a NaN
 loss stops training) and 4 (unknown config groups list what exists).
@@ -108,7 +108,7 @@ def test_bad_input_in_the_run_is_one_line_and_exit_2_and_debug_keeps_the_traceba
 
 
 def test_limit_train_batches_0_is_refused(tmp_path: Path) -> None:
-    """Issue 28: `train.py +trainer.limit_train_batches=0` trained nothing and exited 0 with the untrained tables."""
+    """`train.py +trainer.limit_train_batches=0` trained nothing and exited 0 with the untrained tables."""
     from train import check_training_length, train
 
     cfg = compose_config("train", ["experiment=smoke", "+trainer.limit_train_batches=0"], tmp_path)
@@ -158,7 +158,7 @@ def test_ctrl_c_in_training_exits_130_naming_the_checkpoint_to_resume_from(
 
 
 def test_a_classifier_on_reconstruction_data_is_refused() -> None:
-    """Issue 28: `eval.py ckpt_path=<classifier> data=tiny` exited 0; `train.py experiment=classify data=tiny` ended
+    """`eval.py ckpt_path=<classifier> data=tiny` exited 0; `train.py experiment=classify data=tiny` ended
     in an unrelated rotate_touches TypeError."""
     from eval import check_model_matches_data
 

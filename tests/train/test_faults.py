@@ -1,4 +1,4 @@
-"""Faults around training and evaluation (issue 14): corrupt checkpoints, signals, degenerate epoch counts."""
+"""Faults around training and evaluation: corrupt checkpoints, signals, degenerate epoch counts."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 28 item 1: every command fails in one stderr line with exit 2 (bad input), 1 (failed run), 130 (Ctrl-C).
+"""Every command fails in one stderr line with exit 2 (bad input), 1 (failed run), 130 (Ctrl-C).
 
 The shared mechanism (``tvrecon.utils.cli_errors``) and the argparse-style commands; train.py / eval.py are in
 ``tests/train/test_cli_faults.py``, the robot in ``tests/robot/pybullet_engine/test_pick_place_inputs.py``.

@@ -72,7 +72,7 @@ class ReconstructionDataset(GeneratedDataset):
     the cache of the split is shared). Which touches every path uses is summarised in
     :mod:`tvrecon.data.touches.select`.
 
-    Sample (``docs/batch-schema.md``):
+    Sample (``docs/reference/batch-schema.md``):
         image (3,H,W) float32 [0,1]; K (3,3) float32; RT (3,4) float32 world->camera;
         tactile (max_touches,3,h,w) float32 (scaled grid cells, zeros where padded);
         positions (max_touches,3), directions (max_touches,3) float32 world (zeros where padded);
@@ -244,8 +244,8 @@ class TactileClassificationDataset(GeneratedDataset):
     directions and patches, by one random angle about the world's up axis per visit
     (:mod:`tvrecon.data.pose_augment`): the object's heading is then unknown to a model that reads touch poses.
 
-    Sample (``docs/batch-schema.md``): tactile (N,3,h,w) float32 (scaled grid cells), touch_mask (N,) bool (all
-    True), positions (N,3), directions (N,3) float32 world, label int64; with ``patches``: patch_points (N,Q,3),
+    Sample (``docs/reference/batch-schema.md``): tactile (N,3,h,w) float32 (scaled grid cells), touch_mask (N,) bool
+    (all True), positions (N,3), directions (N,3) float32 world, label int64; with ``patches``: patch_points (N,Q,3),
     patch_normals (N,Q,3) float32 world and patch_mask (N,Q) bool, Q = the pad's Hs*Ws.
 
     Args (in addition to :class:`GeneratedDataset`):

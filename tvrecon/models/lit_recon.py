@@ -174,7 +174,7 @@ class ReconstructionModule(ReconstructionTestProtocol, L.LightningModule):
         """Run the network on a batch with the given touch mask (None = no touch at all).
 
         Args:
-            batch: collated sample dict (``docs/batch-schema.md``): image (B,3,H,W), K (B,3,3), RT (B,3,4),
+            batch: collated sample dict (``docs/reference/batch-schema.md``): image (B,3,H,W), K (B,3,3), RT (B,3,4),
                 tactile (B,T,3,h,w), positions (B,T,3), directions (B,T,3).
             touch_mask: (B, T) bool, or None to run without any touch.
         Returns:

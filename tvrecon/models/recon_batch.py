@@ -1,7 +1,7 @@
 """The reconstruction batch as the model and its tests see it: ground truth in the camera frame, the first k touches,
 the contact-patch keys, and the touch controls (the batch with its touches' content replaced).
 
-Batch keys and shapes: ``docs/batch-schema.md``.
+Batch keys and shapes: ``docs/reference/batch-schema.md``.
 """
 
 from __future__ import annotations

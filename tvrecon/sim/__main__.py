@@ -12,7 +12,7 @@ with ``--surface``, ``pad_surface.ply`` (marching-cubes mesh of the deformed pad
 adds ``force.png`` (per-taxel normal/shear force), ``markers.png`` (marker grid as a camera behind the pad sees it),
 ``rgb.png`` (GelSight-style photometric image) and ``outputs.png`` (all of them beside the displacement).
 ``--sensor digit`` (or ``gelsight_mini``, ``gelsight_r15``, ``tactip``) presses a pad with that sensor's size,
-thickness and material (``tvrecon.sim.sensor.presets``, ``docs/sensors.md``).
+thickness and material (``tvrecon.sim.sensor.presets``, ``docs/guides/sensor-outputs.md``).
 """
 
 from __future__ import annotations
@@ -309,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--sensor",
         choices=SENSOR_PRESET_NAMES,
         default=None,
-        help="pad preset of a real sensor (docs/sensors.md): its size, thickness, E, nu at --n-grid",
+        help="pad preset of a real sensor (docs/guides/sensor-outputs.md): its size, thickness, E, nu at --n-grid",
     )
     p.add_argument("--E", type=float, default=None, help="Young's modulus (default 3, or the --sensor preset's)")
     p.add_argument("--nu", type=float, default=None, help="Poisson ratio (default 0.25, or the --sensor preset's)")

@@ -163,7 +163,7 @@ def test_disabled_cache_always_generates(tmp_path: Path):
 
 
 def test_unreadable_entry_is_reported_not_deleted_and_entries_get_umask_mode(tmp_path, monkeypatch) -> None:
-    """Issue 14 case 4: a permission error was treated as corruption (file deleted); entries were written 0600."""
+    """A permission error was treated as corruption (file deleted); entries were written 0600."""
     from tvrecon.utils.atomic import default_file_mode
 
     cache = SampleCache(tmp_path)
@@ -180,7 +180,7 @@ def test_unreadable_entry_is_reported_not_deleted_and_entries_get_umask_mode(tmp
 
 
 def test_read_only_cache_is_reported_before_generating(tmp_path: Path, monkeypatch) -> None:
-    """Issue 14 case 13: a read-only cache with one missing entry generated it, then crashed storing it."""
+    """A read-only cache with one missing entry generated it, then crashed storing it."""
     import tempfile
 
     cache = SampleCache(tmp_path / "cache")

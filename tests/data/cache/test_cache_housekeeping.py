@@ -1,4 +1,4 @@
-"""Issue 28 item 6: stale temporary files of killed runs are removed at the start of a job, and the first
+"""Stale temporary files of killed runs are removed at the start of a job, and the first
 on-the-fly simulation says how many touches it is about to simulate and where they are cached."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``compile="auto"`` in the data pipeline (issue 27): ``pregenerate`` and the datamodule settle it per process from
+"""``compile="auto"`` in the data pipeline: ``pregenerate`` and the datamodule settle it per process from
 the touches that process will simulate (the policy itself: ``tests/sim/mpm/test_compile_policy.py``). Nothing is
 simulated or compiled: the presses are stubbed."""
 

@@ -1,4 +1,4 @@
-"""Issue 28 item 4: counts and workers are whole numbers in range (``num_samples=2.5`` was silently 2,
+"""Counts and workers are whole numbers in range (``num_samples=2.5`` was silently 2,
 ``workers=0`` silently meant all cores), and ``generate`` says so in one line naming the key."""
 
 from __future__ import annotations

@@ -68,7 +68,7 @@ def test_rank_from_environment(monkeypatch):
 
 def test_splits_comma_or_list():
     """``splits=val,test`` and Hydra's list form ``splits=[val,test]`` name the same splits; a wrong one lists those
-    configured (a GPU session lost its device minutes to ``[val`` passed through as a split's name)."""
+    configured (``[val`` passed through as a split's name cost a GPU run its device minutes)."""
     avail = ["train", "val", "test"]
     assert parse_splits("val,test", avail) == ["val", "test"]
     assert parse_splits("[val, test]", avail) == ["val", "test"]
@@ -139,13 +139,13 @@ def test_every_split_in_one_pool(tmp_path: Path, monkeypatch, capsys):
 
 
 def test_main_names_a_bad_workers_value() -> None:
-    """Issue 14 case 15: `workers=abc` ended in int()'s message without naming workers."""
+    """`workers=abc` ended in int()'s message without naming workers."""
     with pytest.raises(ValueError, match="workers must be a whole number"):
         main(["workers=abc"])
 
 
 def test_default_cache_is_the_projects_whatever_the_working_directory(tmp_path: Path, monkeypatch, capsys) -> None:
-    """Issue 14 case 10: run from another folder, generate filled ./data/cache there, not the cache train.py reads."""
+    """Run from another folder, generate filled ./data/cache there, not the cache train.py reads."""
     from hydra.utils import instantiate
 
     from tvrecon.data import generate

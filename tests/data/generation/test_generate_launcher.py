@@ -1,4 +1,4 @@
-"""Issue 27 item 5: the shards of generate as the jobs of Hydra's launchers (``--multirun``, joblib locally).
+"""The shards of generate as the jobs of Hydra's launchers (``--multirun``, joblib locally).
 
 The jobs together write exactly the cache entries of one process, skip what is cached, and bad spellings of a
 multirun end in a ValueError that says what to write instead.

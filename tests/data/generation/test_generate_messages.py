@@ -1,4 +1,4 @@
-"""Issue 28 item 4: a mistyped key in ``generate`` names the key and lists the real ones (before: Hydra suggested
+"""A mistyped key in ``generate`` names the key and lists the real ones (before: Hydra suggested
 ``+train.num_sample=4``, and following that hint ended in a TypeError of the dataset)."""
 
 from __future__ import annotations

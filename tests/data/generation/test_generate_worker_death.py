@@ -1,4 +1,4 @@
-"""Issue 28 item 2: a generate worker killed by ``kill -9`` (as the OOM killer would) stops the run at once.
+"""A generate worker killed by ``kill -9`` (as the OOM killer would) stops the run at once.
 
 ``multiprocessing.Pool`` waited forever for the dead worker's result; the pool now reports it and the command exits
 1 with one line naming the signal and how to resume.
@@ -140,7 +140,7 @@ def test_the_message_names_the_killed_worker_before_one_that_failed_as_the_pool_
     assert "(pid 13) of split 'train' was killed by SIGKILL" in msg and RESUME_HINT in msg
     assert "(pid 11) of split 'train' exited with status 1" in _dead_worker_message(procs[:2], "train")  # type: ignore[arg-type]
     assert "(pid 12) of split 'train' was killed by SIGTERM" in _dead_worker_message(procs[1:2], "train")  # type: ignore[arg-type]
-    # a survivor that died of another signal as the pool broke (the clean-clone run of the thirteenth session): SIGKILL,
+    # a survivor that died of another signal as the pool broke (seen on a clean-clone run): SIGKILL,
     # which only comes from outside, is the one named
     procs = [_Exited(21, -signal.SIGSEGV), _Exited(22, -signal.SIGKILL)]
     assert "(pid 22) of split 'train' was killed by SIGKILL" in _dead_worker_message(procs, "train")  # type: ignore[arg-type]

@@ -1,4 +1,4 @@
-"""Which cached touches a sample uses: a fresh draw per training epoch, a fixed subset at evaluation (issue 12.2)."""
+"""Which cached touches a sample uses: a fresh draw per training epoch, a fixed subset at evaluation."""
 
 from pathlib import Path
 

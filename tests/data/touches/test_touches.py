@@ -176,16 +176,7 @@ def test_simulate_touches_batches_by_strength(torus: trimesh.Trimesh) -> None:
     assert len(sim.calls) == -(-n_depth // 4) + -(-(21 - n_depth) // 4)
 
 
-def _sim_available() -> bool:
-    try:
-        from tvrecon.sim.press import EIPSimulator  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")
 def test_real_simulation_contact_images(one_thread) -> None:
     """Pressing a small sphere along -normal: contact happens, the pad is pushed in (z > 0) most at its centre
     (the contact patch of a sphere is a disk around the touch point), and a deeper press pushes further."""
@@ -237,7 +228,6 @@ def test_pad_reachable_rejects_grooves() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not _sim_available(), reason="needs SIM-PRESS's tvrecon.sim.press (EIPSimulator)")
 def test_sim_aware_sampling_is_accepted_by_the_simulator(one_thread) -> None:
     """With sim=..., touches on a gear (holes, teeth) are all placeable by the simulator; without, many are not."""
     from tvrecon.data.shapes import make_shape

@@ -58,7 +58,7 @@ def test_too_wide_object_is_reported_and_logged(tmp_path) -> None:
 
 
 def test_oversized_object_is_reported_as_thrown_out_not_too_small(tmp_path) -> None:
-    """Issue 14 case 15: scene.object_size=2.0 knocked the object out of the scene; the robot said "too small"."""
+    """``scene.object_size=2.0`` knocked the object out of the scene; the robot said "too small"."""
     cfg = PickPlaceConfig(object="can", out_dir=str(tmp_path), render_size=(48, 36), progress=False)
     cfg.scene.object_size = 2.0
     cfg.write_gif = cfg.write_mp4 = False
@@ -71,7 +71,7 @@ def test_oversized_object_is_reported_as_thrown_out_not_too_small(tmp_path) -> N
 
 @pytest.mark.parametrize("success", [True, False])
 def test_cli_exit_status_follows_the_outcome(success: bool, tmp_path, monkeypatch, capsys) -> None:
-    """Issue 14 case 15: the robot CLI exited 0 after printing [FAILED]; scripts could not tell."""
+    """The robot CLI exited 0 after printing [FAILED]; scripts could not tell."""
     import sys
     from types import SimpleNamespace
 

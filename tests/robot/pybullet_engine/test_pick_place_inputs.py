@@ -1,4 +1,4 @@
-"""Issue 28: the robot CLI's bad object inputs end in one line naming the file, exit 2 (before: a NaN vertex ran
+"""The robot CLI's bad object inputs end in one line naming the file, exit 2 (before: a NaN vertex ran
 to the end and exited 0, random bytes said "No module named 'charset_normalizer'", ``object=mug.obj`` for a missing
 file said "unknown shape class").
 """

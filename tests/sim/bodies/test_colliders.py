@@ -157,7 +157,7 @@ def test_mesh_collider_near_is_a_superset_of_the_points_within_reach_and_sdf_nor
 
 
 def test_open_plane_from_above_is_solid_below_and_a_shell_otherwise():
-    """Issue 14 case 1: a zero-thickness plane between node planes had no solid node (the pad went through it)."""
+    """A zero-thickness plane between node planes had no solid node (the pad went through it)."""
     z0 = 0.5 + 0.5 / 32  # half-way between the node planes, where the press puts the touch plane
     plane = trimesh.Trimesh([[0.3, 0.3, z0], [0.7, 0.3, z0], [0.7, 0.7, z0], [0.3, 0.7, z0]], [[0, 1, 2], [0, 2, 3]])
     region = ([0.4, 0.4, 0.4], [0.6, 0.6, 0.6])

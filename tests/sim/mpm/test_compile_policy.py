@@ -1,4 +1,4 @@
-"""``compile="auto"`` (issue 27: the fast path by default): who compiles, decided per process from its share of the
+"""``compile="auto"`` (the fast path by default): who compiles, decided per process from its share of the
 touches, the device, a C++ compiler and a warm compile cache; the compile cache under the data cache (the datasets'
 side: ``tests/data/generation/test_compile_auto.py``).
 

@@ -1,4 +1,4 @@
-"""The compiled step on the GPU's layout takes the eager step's deferred reads (issue 27): its block dims come with
+"""The compiled step on the GPU's layout takes the eager step's deferred reads: its block dims come with
 the last step's host read (planned from the new positions), the fixed-step polar's convergence with its own, and
 inside a window of unread steps (``PressLoop.read_every``) the dims are trusted with a margin and the indices clamped.
 It then reads the host at most once a step, where it read twice (``grid.block_dims`` and the polar flag), and gives

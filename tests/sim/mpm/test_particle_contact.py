@@ -128,7 +128,7 @@ def test_autograd_through_a_particle_contact_press():
 
 def test_defaults_and_cache_keys():
     """The solver keeps the grid collider (the simulator contract); the press defaults to particle contact and a
-    threshold in 128-grid cells (issue 15 item 1). At their defaults the fields stay out of the cache spec; the old
+    threshold in 128-grid cells. At their defaults the fields stay out of the cache spec; the old
     press (``contact="grid"``, ``threshold_grid=None``) enters it."""
     assert MPMConfig().contact == "grid"
     p = PressConfig()

@@ -1,4 +1,4 @@
-"""Issue 28 item 4: API arguments of the wrong type name the argument; counts and grid sizes are whole numbers.
+"""API arguments of the wrong type name the argument; counts and grid sizes are whole numbers.
 
 Before: ``SensorConfig(resolution=64)`` failed on "'int' object is not iterable", ``E='3'`` was taken as 3.0,
 a dict for ``sensor`` or the ``PressConfig`` class instead of an instance failed deep inside the press, and

@@ -302,7 +302,7 @@ def test_can_side_reads_alike_on_a_facet_edge_and_centre() -> None:
 
 
 def test_object_below_a_cell_is_refused_not_missed(sim: EIPSimulator) -> None:
-    """Issue 14 case 7: a 1 mm box with domain_size=1 fell between the grid nodes: contact=False, exit 0."""
+    """A 1 mm box with domain_size=1 fell between the grid nodes: contact=False, exit 0."""
     box = trimesh.creation.box(extents=[0.001] * 3)
     with pytest.raises(ValueError, match=r"0\.04 grid cells across .*Scale the object up, or lower domain_size"):
         sim.press(box, [0.0, 0.0, 0.0005], DOWN)
@@ -327,7 +327,7 @@ def _nan_vertex_box(tmp_path) -> trimesh.Trimesh:
 
 
 def test_open_surfaces_are_pressed_like_closed_ones(sim: EIPSimulator, tmp_path) -> None:
-    """Issue 14 case 1: an open box, a single plane and a .obj with a NaN vertex (a hole) gave contact=False."""
+    """An open box, a single plane and a .obj with a NaN vertex (a hole) gave contact=False."""
     closed = sim.press(BOX, [0.0, 0.0, 0.25], DOWN, depth=1.0)
     assert closed.contact
     open_box = trimesh.Trimesh(BOX.vertices, BOX.faces[:10], process=False)  # the +x face removed
@@ -379,7 +379,7 @@ def _slotted_block() -> trimesh.Trimesh:
 
 
 def test_touch_position_starts_the_pad_clear_of_a_rising_surface() -> None:
-    """Issue 14 case 6: the default placement put the touch on the first hit of the centre line (the base, down the
+    """The default placement put the touch on the first hit of the centre line (the base, down the
     slot); the pillars rising under the footprint put the pad inside the object."""
     sim = EIPSimulator(SensorConfig(resolution=(8, 8), layers=2), PressConfig(n_grid=32))
     slot = _slotted_block()
@@ -411,7 +411,7 @@ CACHE_BUMP = (
     "(CACHE_VERSION in tvrecon/data/cache/store.py), or cached datasets keep the old images under the same keys"
 )
 
-# The default press (issue 15 item 1: particle contact, threshold in squared cells of a 128-cell grid, so 0.0125 in
+# The default press (particle contact, threshold in squared cells of a 128-cell grid, so 0.0125 in
 # this grid's cells). Produced with (one thread):
 #   python -c "import torch, trimesh; from tvrecon.sim.press import EIPSimulator, PressConfig;
 #   r = EIPSimulator(press=PressConfig(n_grid=64)).press(trimesh.creation.icosphere(subdivisions=3, radius=0.3),
@@ -422,7 +422,7 @@ GOLDEN_IMAGE_MEAN = [-1.3830140233039856e-07, -3.4924596548080444e-08, 0.0204100
 GOLDEN_IMAGE_STD = [0.000945757364215063, 0.001146793536368237, 0.08444269252715512]
 GOLDEN_IMAGE_ZMAX = 0.5975189208984375
 
-# The grid-contact press (``contact="grid", threshold_grid=None``: the default before issue 15 item 1, threshold
+# The grid-contact press (``contact="grid", threshold_grid=None``: the grid-node collider, threshold
 # 0.05 in this grid's own cells); the values it gave as the default, re-made with the distance table of CACHE_VERSION 6
 # (every face of the 4 nearest distinct surface samples: channel stds moved by <= 0.3%).
 GOLDEN_GRID_STEPS = 59

@@ -1,4 +1,4 @@
-"""Issue 28: a press that does not fit in the domain names every term and the fix (before: "the domain (16 cells) is
+"""A press that does not fit in the domain names every term and the fix (before: "the domain (16 cells) is
 too small for a pad of thickness 2.5 cells" for ``--depth 1e6`` or ``--n-grid 16``, blaming the pad)."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def test_smallest_n_grid_is_one_line_naming_the_sum(tmp_path: Path, capsys) -> N
 
 
 def test_a_mesh_in_mm_says_how_it_was_rescaled_and_a_second_press_into_one_out_warns(tmp_path: Path, capsys) -> None:
-    """Issue 28: a --position in the file's own units was refused without a word about the rescaling, and two
+    """A --position in the file's own units was refused without a word about the rescaling, and two
     presses into one --out mixed their files silently."""
     part = trimesh.creation.box(extents=(50.0, 50.0, 50.0))
     part.apply_translation((100.0, 0.0, 25.0))  # a 50 mm cube off the origin, as a CAD export
@@ -47,7 +47,7 @@ def test_a_mesh_in_mm_says_how_it_was_rescaled_and_a_second_press_into_one_out_w
 
 
 def test_an_object_many_domains_across_warns_about_its_units() -> None:
-    """Issue 28: a 50 mm cube given in mm (50 units) was pressed silently as one flat face."""
+    """A 50 mm cube given in mm (50 units) was pressed silently as one flat face."""
     cube_mm = trimesh.creation.box(extents=(50.0, 50.0, 50.0))
     sim = EIPSimulator(SensorConfig(resolution=(8, 8), layers=3), PressConfig(n_grid=32, depth=0.5))
     with pytest.warns(RuntimeWarning, match=r"the object is 50 domains across .*mesh.apply_scale\(1e-3\)"):

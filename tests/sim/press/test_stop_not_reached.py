@@ -1,4 +1,4 @@
-"""Issue 28 item 4: a stop criterion never reached says so (a flag on the reading, a warning, ``--strict`` exits 1).
+"""A stop criterion never reached says so (a flag on the reading, a warning, ``--strict`` exits 1).
 
 Before, a ``--force`` (or ``--depth``) the press never reached ended at the travel limit with exit 0 and no word.
 """

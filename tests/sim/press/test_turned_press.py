@@ -1,4 +1,4 @@
-"""A press of a turned (or mirrored) object equals the turned image of the original press (issue 12.3).
+"""A press of a turned (or mirrored) object equals the turned image of the original press.
 
 The simulator gives no handle on the pad's in-plane orientation (:func:`tvrecon.sim.sensor.sensor_frame` derives it
 from the press direction), so the test keeps the pad fixed and turns the object instead: pressing straight down

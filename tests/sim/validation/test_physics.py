@@ -1,4 +1,4 @@
-"""Fast physics checks of the solver (issue 15 item 2; the full benchmark is benchmarks/bench_physics.py).
+"""Fast physics checks of the solver (the full benchmark is benchmarks/bench_physics.py).
 
 Tiny pads on coarse grids: each test asserts a physical property with a tolerance the current solver meets. The
 Hertz bands are broad on purpose: today the contact acts on grid nodes, so exponents depend on where the sphere's

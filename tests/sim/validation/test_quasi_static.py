@@ -1,4 +1,4 @@
-"""Step-and-hold indentation (``slab_press(holds=...)``, :mod:`quasi_static`), issue 15 item 1: the
+"""Step-and-hold indentation (``slab_press(holds=...)``, :mod:`quasi_static`): the
 Hertz exponents read at rest, and the physics of the hold (the damping does not move the equilibrium; during a
 constant-speed press the pad's inertia adds force). Measured numbers in the comments: these scenes, one thread.
 """

@@ -149,7 +149,7 @@ def _pool_generate(
     """Generate ``todo`` (``(dataset, index)`` pairs) in ``workers`` spawned processes; yields each pair as it is done.
 
     One pool for every split: the workers start (and compile) once, and a small split does not end on one worker
-    while the other waits for the next split's pool (the fifteenth session measured val and test at 70% of train's
+    while the other waits for the next split's pool (measured: val and test at 70% of train's
     rate, each in its own pool).
 
     A ``ProcessPoolExecutor`` (not ``multiprocessing.Pool``, which waits forever for a worker killed by ``kill -9``)

@@ -1,7 +1,7 @@
 """Naive MLS-MPM: a straightforward torch port of the simulator contract (the mpm88 family), the solver's reference.
 
 Read it next to :class:`tvrecon.sim.mpm.solver.MLSMPM`: the same P2G (paper eq. 5-6), grid velocity and colliders (eq.
-7) and G2P (eq. 8-11), written as directly as possible (``docs/simulator-contract.md`` states the contract). The tests
+7) and G2P (eq. 8-11), written as directly as possible (``docs/reference/simulator-contract.md`` states the contract). The tests
 compare the two (``tests/sim/mpm/test_mpm.py``, ``tests/sim/mpm/test_reference_particle_contact.py``) and
 ``benchmarks/bench_sim.py`` times them.
 

@@ -1,10 +1,11 @@
 """MLS-MPM solver (Hu et al. 2018; paper eq. 5-11, the loop body of Algorithm 1) on a sparse local grid, in torch.
 
-Conventions (the simulator contract, ``docs/simulator-contract.md``): domain ``[0, 1)^3``, ``dx = 1 / n_grid``, node
-``I`` at ``I dx``; quadratic B-spline weights with ``base = floor(x / dx - 0.5)``, ``fx = x / dx - base``, 27 nodes
-per particle. One step is :meth:`MLSMPM._p2g` (eq. 5-6), :meth:`MLSMPM._grid_update` (eq. 7, damping, colliders) and
-:meth:`MLSMPM._g2p` (eq. 8-11). :class:`tvrecon.sim.mpm.reference.ReferenceMPM` is the same step written naively (dense
-grid, a loop over the 27 offsets, SVD): read it first; the tests hold the two equal to round-off.
+Conventions (the simulator contract, ``docs/reference/simulator-contract.md``): domain ``[0, 1)^3``,
+``dx = 1 / n_grid``, node ``I`` at ``I dx``; quadratic B-spline weights with ``base = floor(x / dx - 0.5)``,
+``fx = x / dx - base``, 27 nodes per particle. One step is :meth:`MLSMPM._p2g` (eq. 5-6), :meth:`MLSMPM._grid_update`
+(eq. 7, damping, colliders) and :meth:`MLSMPM._g2p` (eq. 8-11). :class:`tvrecon.sim.mpm.reference.ReferenceMPM` is the
+same step written naively (dense grid, a loop over the 27 offsets, SVD): read it first; the tests hold the two equal to
+round-off.
 
 Layout (:mod:`tvrecon.sim.mpm.block_grid`): the grid is a block per scene aligned to the global lattice and covering
 only the bounding box of that scene's particles (cost follows the particles, not ``n_grid^3``); mass and momentum are

@@ -1,4 +1,6 @@
-"""Pads with the geometry and material of common tactile sensors, from their public specs (``docs/sensors.md``).
+"""Pads with the geometry and material of common tactile sensors, from their public specs.
+
+Their sources: ``docs/guides/sensor-outputs.md``.
 
 The simulator has no physical units of its own: lengths are grid cells (``dx = domain_size / n_grid`` world units),
 the stress unit is whatever ``E`` is measured in, the density sets the time unit. A preset fixes one unit system:

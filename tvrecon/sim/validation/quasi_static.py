@@ -1,4 +1,4 @@
-"""Step-and-hold indentation (issue 15 item 1): the hand of :func:`physics_checks.slab_press` stops at a list
+"""Step-and-hold indentation: the hand of :func:`physics_checks.slab_press` stops at a list
 of depths and holds, so that force and contact radius are read at rest, as an indentation test reads them.
 
 Why: Hertz and the thin-layer limit are static solutions. A pad pressed at a speed v carries momentum. When its

@@ -16,7 +16,7 @@ compiles from 33 touches cold (break-even measured 16) and 7 warm (1).
   touches, or :data:`AUTO_MIN_TOUCHES_WARM` when this version of the kernels is already in the compile cache (a
   marker file written after a process's first compiled step).
 - **CUDA:** ``"auto"`` compiles when the process presses at least :data:`AUTO_MIN_TOUCHES_CUDA` reference touches
-  (about 4,800 of the authors' pad). Measured on an H100 (``benchmarks/README.md``, 2026-11-27, thirteenth session;
+  (about 4,800 of the authors' pad). Measured on an H100 (``benchmarks/README.md``, 2026-11-27, code ``36d3123``;
   the paper scene at batch 64, ``bench_gpu.py``): the compiled loop 18.9 ms a touch against the eager loop's 37.3
   (2.29e8 against 1.16e8 particle-steps/s), its first call 86.6 s longer than a timed one (an empty compile cache): a
   break-even of 4,700 authors' touches. The warm cache's compile was not timed on a GPU, so CUDA keeps this one
