@@ -25,7 +25,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tvrecon.robot import PadConfig  # noqa: E402
-from tvrecon.robot.mujoco_sensor import TactileSensor  # noqa: E402
+from tvrecon.robot.mujoco.sensor import TactileSensor  # noqa: E402
 from tvrecon.sim.plots import save_rgb_png, save_tactile_png  # noqa: E402
 from tvrecon.utils.atomic import atomic_write_text  # noqa: E402
 from tvrecon.utils.cli_errors import run_cli  # noqa: E402

@@ -1,9 +1,9 @@
 """Naive MLS-MPM: a straightforward torch port of the simulator contract (the mpm88 family), the solver's reference.
 
 Read it next to :class:`tvrecon.sim.mpm.solver.MLSMPM`: the same P2G (paper eq. 5-6), grid velocity and colliders (eq.
-7) and G2P (eq. 8-11), written as directly as possible (``docs/reference/simulator-contract.md`` states the contract). The tests
-compare the two (``tests/sim/mpm/test_mpm.py``, ``tests/sim/mpm/test_reference_particle_contact.py``) and
-``benchmarks/bench_sim.py`` times them.
+7) and G2P (eq. 8-11), written as directly as possible (``docs/reference/simulator-contract.md`` states the
+contract). The tests compare the two (``tests/sim/mpm/test_mpm.py``,
+``tests/sim/mpm/test_reference_particle_contact.py``) and ``benchmarks/speed/bench_sim.py`` times them.
 
 Dense ``n_grid^3`` grid, a python loop over the 27 stencil offsets with one ``index_add_`` per quantity,
 ``torch.linalg.svd`` for the polar decomposition and ``P(F) = 2 mu (F - R) + lam (J - 1) J F^-T`` with
