@@ -6,10 +6,6 @@
   its config group;
 - every command in the README's "Three ways in" code blocks runs at a tiny size (:data:`TINY`), is run by
   ``tests/docs/test_examples.py`` (:data:`BY_EXAMPLES`), or is long (:data:`LONG`, composed but not run).
-
-:data:`PENDING` lists names the docs already spell the way a branch being merged beside this one makes them (each with
-the present name it replaces, which must resolve meanwhile). An entry fails the test as soon as its name resolves:
-the merge has landed and the entry goes.
 """
 
 from __future__ import annotations
@@ -26,39 +22,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-#: the house moves: tvrecon/robot/ into pybullet/ and mujoco/ rooms, tvrecon/data/ into rooms, run plumbing in train/
-HOUSE = "the house moves"
-#: the results branch: one page per paper table, linked from the README's headline block
-RESULTS = "the results pages"
-#: the chart branch: the Chart-based method of Table 3
-CHART = "the Chart-based experiments"
-#: name, path or config choice as the docs write it -> (what adds it, the present name it replaces or None)
-PENDING: dict[str, tuple[str, str | None]] = {
-    "experiment=chart_based": (CHART, None),
-    "experiment=chart_based_predicted": (CHART, None),
-    "experiment=chart_based_visual": (CHART, None),
-    "experiment=chart_based_tactile": (CHART, None),
-    "docs/reproduce/table1.md": (RESULTS, None),
-    "docs/reproduce/table2.md": (RESULTS, None),
-    "docs/reproduce/table3.md": (RESULTS, None),
-    "docs/reproduce/table4.md": (RESULTS, None),
-    "tvrecon.robot.pybullet.pick_place": (HOUSE, "tvrecon.robot.pick_place"),
-    "tvrecon.robot.mujoco.pick_place": (HOUSE, "tvrecon.robot.mujoco_pick_place"),
-    "tvrecon/train/": (HOUSE, None),
-    "tvrecon.robot.mujoco.sensor": (HOUSE, "tvrecon.robot.mujoco_sensor"),
-    "tvrecon.robot.pad_sensor": (HOUSE, "tvrecon.robot.pad"),
-    "tvrecon.robot.pybullet.TactileFinger": (HOUSE, "tvrecon.robot.TactileFinger"),
-    "tvrecon.data.touches.sweep.PaperSweepTouchPolicy": (HOUSE, "tvrecon.data.touch_sweep.PaperSweepTouchPolicy"),
-    "tvrecon.data.touches.policies.ConeTouchPolicy": (HOUSE, "tvrecon.data.touches.ConeTouchPolicy"),
-    "tvrecon.data.touches.sweep_figure": (HOUSE, "tvrecon.data.sweep_figure"),
-    "tvrecon.sim.mpm.block_grid": (HOUSE, "tvrecon.sim.mpm.grid"),
-    "tvrecon.sim.mpm.block_grid.block_layout": (HOUSE, "tvrecon.sim.mpm.grid.block_layout"),
-}
-
-#: research notebooks that the notes pages replace (excluded from the site in mkdocs.yml too); not scanned
-NOTEBOOKS = ("cls-preset.md", "physics.md", "results-small.md", "table2-cpu.md", "table2-paper-touches.md",
-             "table2-touch-poses.md", "table3-paper-touches.md")
-
 NAME = re.compile(r"\btvrecon(?:\.\w+)+")
 PATH = re.compile(
     r"(?<![\w/.-])((?:tvrecon|configs|docs|examples|benchmarks|tests|results)/[\w./*-]*[\w/*]"
@@ -69,8 +32,7 @@ GROUP_DIR = {"preset": "data"}
 
 
 def _pages() -> list[Path]:
-    pages = [ROOT / "README.md"] + sorted((ROOT / "docs").rglob("*.md"))
-    return [p for p in pages if p.relative_to(ROOT).as_posix() not in {f"docs/{n}" for n in NOTEBOOKS}]
+    return [ROOT / "README.md"] + sorted((ROOT / "docs").rglob("*.md"))
 
 
 def _resolves(name: str) -> bool:
@@ -98,28 +60,10 @@ def _mentions(pattern: re.Pattern, group: int = 0) -> dict[str, set[str]]:
     return found
 
 
-def _check_pending(what: str, ok: bool, problems: list[str]) -> bool:
-    """True when ``what`` is a PENDING entry (then checked here), False when it is an ordinary name."""
-    if what not in PENDING:
-        return False
-    source, present = PENDING[what]
-    if ok:
-        problems.append(f"{what} exists now ({source} merged): remove it from PENDING in {Path(__file__).name}")
-    elif present is not None and not (_resolves(present) if "/" not in present else (ROOT / present).exists()):
-        problems.append(f"{what} is pending ({source}), but the name it replaces, {present}, does not resolve either")
-    return True
-
-
-def test_pending_and_notebook_lists_are_current() -> None:
-    stale = [n for n in NOTEBOOKS if not (ROOT / "docs" / n).exists()]
-    assert not stale, f"docs/{stale} no longer exist: remove them from NOTEBOOKS here and exclude_docs in mkdocs.yml"
-
-
 def test_dotted_names_resolve() -> None:
     problems = []
     for name, pages in sorted(_mentions(NAME).items()):
-        ok = _resolves(name)
-        if not _check_pending(name, ok, problems) and not ok:
+        if not _resolves(name):
             problems.append(f"{name} (in {', '.join(sorted(pages))}) does not resolve")
     assert not problems, "\n".join(problems)
 
@@ -128,7 +72,7 @@ def test_repository_paths_exist() -> None:
     problems = []
     for path, pages in sorted(_mentions(PATH).items()):
         ok = any(ROOT.glob(path.rstrip("/"))) if "*" in path else (ROOT / path).exists()  # a glob: one match
-        if not _check_pending(path, ok, problems) and not ok:
+        if not ok:
             problems.append(f"{path} (in {', '.join(sorted(pages))}) does not exist")
     assert not problems, "\n".join(problems)
 
@@ -143,7 +87,7 @@ def test_config_choices_exist() -> None:
             folder = ROOT / "configs" / GROUP_DIR.get(group, group)
             for choice in value.split(","):
                 ok = (folder / f"{choice}.yaml").is_file()
-                if choice and not _check_pending(f"{group}={choice}", ok, problems) and not ok:
+                if choice and not ok:
                     where = page.relative_to(ROOT)
                     problems.append(f"{group}={choice} in {where}: no configs/{folder.name}/{choice}.yaml")
     assert not problems, "\n".join(sorted(set(problems)))
@@ -263,8 +207,6 @@ def test_long_commands_compose(command: str) -> None:
     argv = shlex.split(command)
     if argv[1] == "-m":
         module = argv[2]
-        if not _resolves(module) and module in PENDING:  # until that merge: the module it replaces
-            module = PENDING[module][1] or module
         assert _resolves(module), module
         return
     assert (ROOT / argv[1]).is_file(), argv[1]
