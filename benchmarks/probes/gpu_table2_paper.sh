@@ -12,7 +12,7 @@
 #   TRAIN_ARGS="trainer.accelerator=cpu trainer.precision=32-true data.train.num_objects=3 data.val.num_objects=3 \
 #   data.test.num_objects=3 trainer.max_epochs=1" bash benchmarks/probes/gpu_table2_paper.sh
 #
-# Missing Python packages travel as wheels in .whl/ (docs/gpu.md, "A machine with no network"); they are installed
+# Missing Python packages travel as wheels in .whl/ (docs/guides/gpu.md, "A machine with no network"); they are installed
 # into /tmp/site when the project's packages are not importable. Each step is bounded so that the results of the steps done come back.
 set -u
 OUT=${OUT:-$PWD/gpu_table2_out}; mkdir -p "$OUT"

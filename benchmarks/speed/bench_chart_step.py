@@ -33,7 +33,7 @@ os.environ.setdefault("PROJECT_ROOT", str(ROOT))
 
 
 def make_batch(B: int = 8, T: int = 10, H: int = 128, h: int = 64, pad: int = 31) -> dict[str, torch.Tensor]:
-    """A paper_cpu-shaped reconstruction batch (``docs/batch-schema.md``) of a sphere of radius 0.35."""
+    """A paper_cpu-shaped reconstruction batch (``docs/reference/batch-schema.md``) of a sphere of radius 0.35."""
     g = torch.Generator().manual_seed(0)
     f = 0.5 * H / math.tan(math.radians(35.0) / 2)
     r = 0.35

@@ -22,7 +22,7 @@ Presets (reconstruction ``<name>.yaml``, classification ``cls_<name>.yaml``):
 - ``cls_paper_cpu``: the classification split sizes of Table 1 (5,500 / 1,500 images, plus 700 validation) with a
   32 x 32 pad on a 64^3 grid (the paper's touch geometry at half its resolution) and 32 px tactile maps, so that
   2 CPU cores generate it in about 15 minutes (``configs/data/cls_paper_cpu.yaml`` says why each value was chosen,
-  ``docs/cls-preset.md`` how it was measured).
+  ``docs/notes/classification.md`` how it was measured).
 - ``tiny``: a few objects of 3 classes with a 16 x 16 pad on a 64^3 grid and 64 px views, for tests and the smoke
   experiment.
 """

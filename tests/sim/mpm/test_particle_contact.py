@@ -3,7 +3,8 @@
 elsewhere: the golden presses in test_press.py (the new default and the grid path) and the preset cache keys in
 tests/data/test_preset_snapshot.py.
 
-Measured numbers quoted in the comments come from these scenes on one thread (docs/physics.md has the benchmark).
+Measured numbers quoted in the comments come from these scenes on one thread (docs/validation/physics.md has
+the benchmark).
 """
 
 from __future__ import annotations

@@ -70,7 +70,7 @@ def test_chamfer_is_blind_to_in_plane_motion_beyond_half_a_spacing() -> None:
     saturated by a lateral (Poisson) spread once the edge particles move over half the lattice spacing.
 
     This is why the default stop on a face larger than the pad comes deeper on finer grids (the spread is one
-    physical length, the spacing half a cell; ``bench_stop_measure.py``, ``docs/physics.md``)."""
+    physical length, the spacing half a cell; ``bench_stop_measure.py``, ``docs/validation/physics.md``)."""
     x0, lattice, _ = _layers(torch.float64)
     H, W, sp = lattice
     rel = x0 - x0.mean(0)

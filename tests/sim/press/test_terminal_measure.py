@@ -2,7 +2,7 @@
 
 On a face larger than the pad the deformation is a sideways spread, which eq. 12's nearest neighbours stop seeing
 past half a lattice spacing: the displacement stop comes first there. On a sphere the deformation is a normal dent
-and both stop on the same step (docs/physics.md, "The stop depth across the object library").
+and both stop on the same step (docs/notes/stop-depth.md).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""Fast physics checks of the solver (the full benchmark is benchmarks/bench_physics.py).
+"""Fast physics checks of the solver (the full benchmark is benchmarks/physics/bench_physics.py).
 
 Tiny pads on coarse grids: each test asserts a physical property with a tolerance the current solver meets. The
 Hertz bands are broad on purpose: today the contact acts on grid nodes, so exponents depend on where the sphere's
-apex sits between node planes (docs/physics.md); the tests pin what holds at every offset.
+apex sits between node planes (docs/validation/physics.md); the tests pin what holds at every offset.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def test_hertz_press_force_grows_with_depth(offset):
     # the pad is pushed harder the deeper it goes (per step noise below 2% of the final force)
     assert np.all(np.diff(fi) > -0.02 * fi[-1])
     assert fi[-1] > 3 * fi[0] > 0
-    # a broad band around Hertz's 1.5 / the thin layer's 2 at every apex offset (see docs/physics.md)
+    # a broad band around Hertz's 1.5 / the thin layer's 2 at every apex offset (see docs/validation/physics.md)
     assert 1.0 < loglog_slope(d, f, 0.75, TINY["max_depth"]) < 2.6
     # the 2-cell layer bonded to the hand lies between a half-space (Hertz) and the thin-layer limit (Winkler,
     # 3.25x Hertz here); measured 1.6-3.4x Hertz depending on the offset
@@ -81,7 +81,7 @@ def test_free_oscillation_energy_does_not_grow():
     osc = free_oscillation(n_grid=32, width=4.0, thick=4.0, periods=1.0)
     tot = osc["total"]
     assert osc["kinetic"].min() < 0.5 * osc["kinetic"][0]  # it oscillates: kinetic energy turns elastic
-    assert tot.max() <= tot[0] * 1.02  # no growth beyond the 1% wobble of this energy measure (docs/physics.md)
+    assert tot.max() <= tot[0] * 1.02  # no growth beyond the 1% wobble of this energy measure
     assert tot[-1] > 0.6 * tot[0]  # measured 0.77 on this 4-cell slab after one period
     p = osc["momentum"]
     assert np.abs(p - p[0]).max() < 1e-6 * np.sqrt(2 * tot[0])

@@ -17,7 +17,7 @@
 initialised to 0, so an untrained fusion network adds nothing to the visual maps and equals the visual-only model,
 and each block's scale grows only as far as its touches lower the loss (the zero-init-residual trick of ResNets).
 With ``zero_init=False`` (the default BatchNorm init, scale 1) the 16 blocks add unit-size embeddings to the visual
-maps from the first step (``docs/results-small.md`` has the effect on the ``small`` preset).
+maps from the first step.
 
 **Directions in the camera frame**: the mesh is predicted in the camera frame and the network never sees the
 camera pose, so the FFN embeds the press direction rotated into the camera frame (``R d``), not the world one.

@@ -4,7 +4,7 @@
   degree-normalised (mean over neighbours, see ``GraphConv``). The neighbour sum is one product with a sparse CSR
   matrix, block-diagonal over the batch (``neighbour_matrix``, built once per mesh level by ``MeshDeformer``),
   instead of gathering both ends of every edge and ``index_add`` (``benchmarks/reference_train.py``; speed in
-  ``benchmarks/bench_train_step.py``); its transpose is prebuilt for the backward (``neighbour_operator``), and
+  ``benchmarks/speed/bench_train_step.py``); its transpose is prebuilt for the backward (``neighbour_operator``), and
   ``W0`` and ``W1`` run as one matrix product.
 * ``GResBlock``: two graph convs with ReLU and a residual connection, ``(x + conv2(relu(conv1(x)))) / 2`` as in
   Pixel2Mesh.

@@ -1,6 +1,6 @@
 """Touch geometry's deformer run on the Pixel2Mesh answer (beyond the paper).
 
-Two earlier answers to "touch geometry answers a view alone worse than Pixel2Mesh" (``docs/table3-paper-touches.md``):
+Two earlier answers to "touch geometry answers a view alone worse than Pixel2Mesh" (``docs/notes/touch-geometry.md``):
 
 * :class:`~tvrecon.models.components.touch_geometry.TouchGeometryDeformer` reads the touches in every deformation
   block: 0.57x visual only with 10 touches, but 1.27x with none (the same blocks serve both answers);

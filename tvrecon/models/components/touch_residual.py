@@ -3,7 +3,7 @@
 :class:`~tvrecon.models.components.touch_geometry.TouchGeometryDeformer` feeds the touch features into every
 deformation block, so the same blocks must answer a view with touches and a view alone; trained that way it answered a
 view alone worse than Pixel2Mesh (15.30 against 12.93 x1e-3 on ``small`` with the paper's touches,
-``docs/table3-paper-touches.md``), and more touch-free samples did not help. Here the two answers are kept apart:
+``docs/notes/touch-geometry.md``), and more touch-free samples did not help. Here the two answers are kept apart:
 
 * the **visual path** is Pixel2Mesh unchanged (:class:`~tvrecon.models.components.gcn.MeshDeformer`'s blocks, paper
   eq. 13-15), trained by its own loss on every sample (``ReconstructionModule(visual_loss_weight=...)`` reads

@@ -55,8 +55,8 @@ class PressConfig:
         contact: where the rigid object acts on the pad (``MPMConfig.contact``, whose own default stays ``"grid"``):
             ``"particle"`` (default: the contact-layer particles, from when they reach the surface, whatever the
             object's offset from the node planes; :mod:`tvrecon.sim.mpm.particle_contact`; meets the Hertz exponent
-            targets, docs/physics.md) or ``"grid"`` (the grid nodes with sdf < 0; contact starts up to 1.5 cells
-            before the particles arrive; the earlier default).
+            targets, docs/validation/physics.md) or ``"grid"`` (the grid nodes with sdf < 0; contact starts up to 1.5
+            cells before the particles arrive; the earlier default).
         threshold_grid: the grid whose cells measure ``threshold``. An int N (default 128): squared cells of an
             N-cell grid, a fixed physical length (``domain_size / N`` world units); the terminal check compares the
             chamfer with ``threshold * (n_grid / N)^2``, so the default stops every grid where paper eq. 12 stops at
@@ -68,8 +68,8 @@ class PressConfig:
             own rest position, :func:`~tvrecon.sim.press.stop_rules.terminal_displacement`, ``DisplacementRule``). Eq.
             12's nearest neighbours stop seeing a sideways spread once it passes half the lattice spacing (a quarter
             cell), so on a face larger than the pad the chamfer stop comes deeper on finer grids (0.61 of the 256
-            depth at 128); the displacement stop does not (0.98-0.99). Elsewhere the two agree. docs/physics.md, "The
-            stop depth across the object library".
+            depth at 128); the displacement stop does not (0.98-0.99). Elsewhere the two agree
+            (docs/notes/stop-depth.md).
         collider_refine: the object's signed-distance table (``MeshCollider``) is sampled ``collider_refine`` times
             finer than the grid (spacing ``dx / collider_refine``). The trilinear table cannot hold a part thinner
             than about one of its cells (both nodes astride a blade or a rod lie outside it, so the interpolated

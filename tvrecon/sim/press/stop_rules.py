@@ -13,8 +13,7 @@ The terminal threshold is in squared cells of the press's own grid, or, with ``P
 squared cells of an N-cell grid (a physical unit: :func:`threshold_cells` converts it). It is compared with the
 paper's chamfer, or with ``PressConfig.terminal="displacement"`` (:class:`DisplacementRule`) with
 :func:`terminal_displacement`, the same deformation matched particle to particle (beyond the paper: eq. 12's nearest
-neighbours stop seeing a sideways spread past half a lattice spacing, docs/physics.md "The stop depth across the
-object library").
+neighbours stop seeing a sideways spread past half a lattice spacing: docs/notes/stop-depth.md).
 
 A ``depth`` rule needs travel: :func:`travel_for_depth` raises ``max_depth`` to ``depth + 0.5`` cells when it is
 shorter, so the travel limit does not stop the press before the requested depth (the placement's collider region

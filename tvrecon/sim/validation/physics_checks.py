@@ -1,4 +1,4 @@
-"""Physics checks of the solver: the scenes and the theory that ``benchmarks/bench_physics.py``
+"""Physics checks of the solver: the scenes and the theory that ``benchmarks/physics/bench_physics.py``
 and ``tests/sim/validation/test_physics.py`` share. Nothing here changes the simulator; it drives :class:`MLSMPM`
 directly.
 
