@@ -22,7 +22,9 @@ sim-demo: $(STAMP)
 	$(BIN)/python -m tvrecon.sim press --shape torus --direction 0 0 -1 --out outputs/sim_demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	# one worker per core (pytest-xdist; work stealing, so the two long compile tests do not end the run alone), one
+	# torch thread each: the workers would otherwise oversubscribe the cores
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal
 
 docs: $(STAMP)
 	$(BIN)/mkdocs build --strict
