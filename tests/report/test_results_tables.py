@@ -119,6 +119,18 @@ def test_table3_rows_are_seed_means_beside_the_paper_with_ratio_and_command(tiny
     assert "seed=<seed>" in text and "`python train.py experiment=full data=tiny trainer.max_epochs=3 seed=1`" in text
 
 
+def test_table3_keeps_runs_of_another_precision_apart_with_their_own_reference(tiny_results: Path) -> None:
+    cmd = "python train.py experiment={} data=tiny trainer.max_epochs=3 seed={} trainer.precision=bf16-mixed"
+    _write_run(tiny_results / "table3" / "visual_only_bf16_s1", _recon("visual_only", 1, 20.0), cmd.format("v", 1))
+    _write_run(tiny_results / "table3" / "full_bf16_s1", _recon("full", 1, 30.0, {10: 10.0}), cmd.format("full", 1))
+    text = render("table3", tiny_results)
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith("| Model")}  # fmt: skip
+    assert rows["Visual only (Pixel2Mesh)"][:2] == ["1, 2", "11.00 +- 1.41"]  # the 32-bit runs alone
+    assert rows["Visual only (Pixel2Mesh), bf16-mixed"][:2] == ["1", "20.00"]
+    assert rows["The paper's fusion model (`full`), bf16-mixed"][-1] == "0.50x"  # 10 / 20: its own precision's
+
+
 def test_table4_and_table2_render_ours_and_the_papers(tiny_results: Path) -> None:
     t4 = render("table4", tiny_results)
     assert "| Paper: the paper's fusion model" in t4 and "5.32" in t4

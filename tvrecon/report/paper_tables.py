@@ -35,13 +35,17 @@ __all__ = ["build_table1", "build_table2_vs_paper", "build_table3_vs_paper", "bu
 LABELS: dict[str, str] = {"full": "The paper's fusion model (`full`)"}
 
 
-def _group_label(name: str, epochs: int | None, fixed: bool, common_epochs: int | None) -> str:
+def _group_label(
+    name: str, epochs: int | None, fixed: bool, precision: str | None, common_epochs: int | None, common_precision: str
+) -> str:
     label = LABELS.get(name, PRETTY_NAMES.get(name, name))
     extra = []
     if fixed:
         extra.append("visual path fixed")
     if epochs is not None and epochs != common_epochs:
         extra.append(f"{epochs} epochs")
+    if precision is not None and precision != common_precision:
+        extra.append(precision)
     return ", ".join([label, *extra])
 
 
@@ -54,15 +58,19 @@ def _cell(runs: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
 
 
 def seed_groups(results: Iterable[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, Any]]]]:
-    """Reconstruction results grouped into rows: one per (experiment name, epochs, fixed visual path), in the paper's
-    row order, each with a readable label (the epochs are named where they differ from the most common schedule)."""
+    """Reconstruction results grouped into rows: one per (experiment name, epochs, fixed visual path, training
+    precision), in the paper's row order, each with a readable label (the epochs and the precision are named where
+    they differ from the most common)."""
     recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
-    groups: dict[tuple[str, Any, bool], list[Mapping[str, Any]]] = {}
+    groups: dict[tuple[str, Any, bool, Any], list[Mapping[str, Any]]] = {}
     for r in recon:
-        groups.setdefault((str(r["name"]), r.get("epochs"), bool(r.get("fixed_visual"))), []).append(r)
+        key = (str(r["name"]), r.get("epochs"), bool(r.get("fixed_visual")), r.get("precision"))
+        groups.setdefault(key, []).append(r)
     epochs = [r.get("epochs") for r in recon if r.get("epochs") is not None]
     common = max(set(epochs), key=epochs.count) if epochs else None
-    return [(_group_label(n, e, f, common), runs) for (n, e, f), runs in groups.items()]
+    precisions = [str(r.get("precision")) for r in recon if r.get("precision") is not None]
+    common_precision = max(set(precisions), key=precisions.count) if precisions else "32-true"
+    return [(_group_label(n, e, f, p, common, common_precision), runs) for (n, e, f, p), runs in groups.items()]
 
 
 def _mean(runs: Sequence[Mapping[str, Any]], mode: str) -> float | None:
@@ -89,9 +97,11 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
         rows.append(row)
     groups = seed_groups(results)
     visual = [runs for _, runs in groups if str(runs[0]["name"]) == "visual_only"]
-    reference = _mean(visual[0], "visual") if visual else None
     starred = False
     for label, runs in groups:
+        # Pixel2Mesh trained the same way (epochs, precision) where there is one, else the first visual-only row
+        same = [v for v in visual if all(v[0].get(k) == runs[0].get(k) for k in ("epochs", "precision"))]
+        reference = _mean((same or visual)[0], "visual") if visual else None
         visual_cell = _cell(runs, ["visual"])
         if visual_cell != "-" and runs[0].get("modality") == "tactile_visual":
             visual_cell += "*"
@@ -106,7 +116,7 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
         "Chamfer distance x1e-3 (1,000 points on each surface), lower is better; ours: mean +- sample std over the "
         "seeds listed (one seed: no spread).",
         f"T&V {k} / Visual: the row's chamfer with {k} touches over Pixel2Mesh's (the paper's Visual column; ours: "
-        "the visual-only model's mean over its seeds).",
+        "the mean over the seeds of the visual-only model trained the same way).",
     ]
     if results:
         notes.append(data_note([r for r in results if r["task"] == "reconstruction"]))

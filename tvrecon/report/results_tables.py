@@ -69,13 +69,16 @@ class Run:
 
     def result(self) -> dict[str, Any]:
         """The metrics with what the tables need from the manifest: ``data_preset``, ``epochs`` (the command's
-        ``trainer.max_epochs``) and ``fixed_visual`` (the command freezes the visual path)."""
+        ``trainer.max_epochs``), ``fixed_visual`` (the command freezes the visual path) and ``precision`` (the
+        manifest's, else the command's ``trainer.precision``, else ``32-true``: runs before the bf16 default)."""
         out = dict(self.metrics)
         command = str(self.manifest.get("command") or "")
         epochs = re.search(r"trainer\.max_epochs=(\d+)", command)
         out["data_preset"] = self.manifest.get("data_preset")
         out["epochs"] = int(epochs[1]) if epochs else None
         out["fixed_visual"] = "freeze=" in command
+        precision = re.search(r"trainer\.precision=(\S+)", command)
+        out["precision"] = self.manifest.get("precision") or (precision[1] if precision else "32-true")
         out.setdefault("seed", self.manifest.get("seed"))
         return out
 
