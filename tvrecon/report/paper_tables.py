@@ -101,7 +101,8 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
     for label, runs in groups:
         # Pixel2Mesh trained the same way (epochs, precision) where there is one, else the first visual-only row
         same = [v for v in visual if all(v[0].get(k) == runs[0].get(k) for k in ("epochs", "precision"))]
-        reference = _mean((same or visual)[0], "visual") if visual else None
+        same = same or [v for v in visual if v[0].get("precision") == runs[0].get("precision")] or visual
+        reference = _mean(same[0], "visual") if same else None
         visual_cell = _cell(runs, ["visual"])
         if visual_cell != "-" and runs[0].get("modality") == "tactile_visual":
             visual_cell += "*"

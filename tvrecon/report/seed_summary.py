@@ -32,9 +32,11 @@ def mean_std_cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) ->
 def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
     """Chamfer (x1e-3) mean +- std over the seeds of every reconstruction experiment run with two or more seeds."""
     recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
-    groups: dict[str, list[Mapping[str, Any]]] = {}
-    for r in recon:
-        groups.setdefault(str(r["name"]), []).append(r)
+    groups: dict[tuple[str, Any], list[Mapping[str, Any]]] = {}
+    for r in recon:  # runs trained at another precision (``precision``, where the result has it) are a row apart
+        groups.setdefault((str(r["name"]), r.get("precision")), []).append(r)
+    precisions = [str(r["precision"]) for r in recon if r.get("precision") is not None]
+    common = max(set(precisions), key=precisions.count) if precisions else None
     k_max = max(touches)
     header = (
         ["Model", "Seeds", "No touch"]
@@ -43,11 +45,12 @@ def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[i
         + [f"Another object's {k_max}", f"Blank {k_max}"]
     )
     rows = []
-    for name, runs in groups.items():
+    for (name, precision), runs in groups.items():
         if len(runs) < 2:
             continue
         seeds = ", ".join(str(r.get("seed", "?")) for r in runs)
-        row = [PRETTY_NAMES.get(name, name), seeds, mean_std_cell(runs, ["visual"])]
+        label = PRETTY_NAMES.get(name, name) + (f", {precision}" if precision not in (None, common) else "")
+        row = [label, seeds, mean_std_cell(runs, ["visual"])]
         row += [mean_std_cell(runs, [f"tv@{k}", f"tactile@{k}"]) for k in touches]
         row += [mean_std_cell(runs, [f"tv@{k}+refine", f"tactile@{k}+refine", f"visual+refine@{k}"]) for k in touches]
         row += [mean_std_cell(runs, [f"tv@{k_max}:{c}", f"tactile@{k_max}:{c}"]) for c in ("other", "blank")]
