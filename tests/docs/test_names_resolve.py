@@ -161,7 +161,8 @@ LONG: dict[str, str | None] = {
     ".venv/bin/python train.py -m experiment=full,visual_only,tactile_only,no_gap,no_direction,region_1x1,region_5x5,"
     "single_stage data=paper trainer=gpu": "train",
     ".venv/bin/python eval.py run_dir=logs/train/multiruns/<time>": None,
-    ".venv/bin/python train.py -m experiment=classify_paper_cpu model.num_touches=1,2,4,6,8,10 seed=0,1,2": "train",
+    ".venv/bin/python train.py -m experiment=classify_paper_cpu data.library.protocol=shared_base "
+    "model.num_touches=1,2,4,6,8,10 seed=0,1,2": "train",
     ".venv/bin/python train.py experiment=full data=small data.library.user_root=my_meshes "
     "'data.train.classes=[bottle,can,mypart]'": "train",
     ".venv/bin/python -m tvrecon.robot.pybullet.pick_place object=can": None,
