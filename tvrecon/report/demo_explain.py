@@ -62,7 +62,8 @@ def _paper_size_lines(results_root: Path) -> list[str]:
         return [f"- The paper's fusion model at Table 1's size: see {PAGE} (its results folder is not here)."]
     runs = [r for r in load_runs(table3) if r.metrics.get("task") == "reconstruction"]
     full = [r for r in runs if r.metrics["name"] == "full" and "tv@10:other" in r.metrics["modes"]]
-    visual = [r for r in runs if r.metrics["name"] == "visual_only"]
+    precisions = {r.result()["precision"] for r in full}  # Pixel2Mesh trained the way the fusion runs were
+    visual = [r for r in runs if r.metrics["name"] == "visual_only" and r.result()["precision"] in precisions]
     if not full or not visual:
         return [f"- The paper's fusion model at Table 1's size: see {PAGE}."]
     own = [_chamfer(r.metrics, "tv@10") or 0.0 for r in full]
