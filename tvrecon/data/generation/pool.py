@@ -194,8 +194,13 @@ def _pool_generate(
 
 
 def _dead_worker_message(procs: list[mp.process.BaseProcess], desc: str | Sequence[str]) -> str:
+    # the executor's manager thread reaps the workers too: a poll that loses that race reads no exit code for a
+    # process already dead, until the manager thread has stored it, so ask again for a few seconds
+    deadline = time.monotonic() + 5.0
     for p in procs:
         p.join(timeout=1)
+        while p.exitcode is None and time.monotonic() < deadline:
+            time.sleep(0.05)
     dead = [p for p in procs if p.exitcode is not None and p.exitcode != 0]
 
     # the pool SIGTERMs the others itself, and a survivor may die of its own as the queues close under it, with an
