@@ -211,7 +211,7 @@ def test_lightning_fit_and_test_protocol(tmp_path: Path) -> None:
         assert torch.isfinite(trainer.callback_metrics[key])
     trainer.test(model, loader)
     modes = model.test_results["modes"]
-    assert set(modes) == {"visual", "tv@2", "tv@4", "tv@4:other", "tv@4:blank"}
+    assert set(modes) == {"visual", "tv@2", "tv@4", "tv@2:other", "tv@2:blank", "tv@4:other", "tv@4:blank"}
     assert all(m["count"] == 4 and m["chamfer"] > 0 for m in modes.values())
     for mode, modality in (("chart_based_visual", "visual"), ("chart_based_tactile", "tactile")):
         lit = ReconstructionModule(_net(mode), torch.optim.Adam, criterion=ChartLoss(), min_touches=1)

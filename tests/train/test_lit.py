@@ -286,7 +286,14 @@ def test_touch_controls_replace_the_touch_content(tmp_path: Path) -> None:
     trainer.fit(model, dm)
     trainer.test(model, dm)
     modes = model.test_results["modes"]
-    assert set(modes) == {"tactile@2", "tactile@5", "tactile@5:other", "tactile@5:blank"}
+    assert set(modes) == {
+        "tactile@2",
+        "tactile@5",
+        "tactile@2:other",
+        "tactile@2:blank",
+        "tactile@5:other",
+        "tactile@5:blank",
+    }
     assert modes["tactile@5:other"]["count"] == modes["tactile@5"]["count"] == 4
     assert modes["tactile@5:blank"]["chamfer"] != modes["tactile@5"]["chamfer"]
 

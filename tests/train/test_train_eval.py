@@ -125,7 +125,17 @@ def test_fast_dev_run_train_prints_tables(tmp_path: Path, capsys: pytest.Capture
     out = train(cfg)
     res = out["result"]
     # smoke also tests with test-time touch refinement (its own Table 3 row) and the touch controls
-    modes = {"visual", "tv@2", "tv@5", "tv@2+refine", "tv@5+refine", "tv@5:other", "tv@5:blank"}
+    modes = {
+        "visual",
+        "tv@2",
+        "tv@5",
+        "tv@2+refine",
+        "tv@5+refine",
+        "tv@2:other",
+        "tv@2:blank",
+        "tv@5:other",
+        "tv@5:blank",
+    }
     assert res["name"] == "smoke" and set(res["modes"]) == modes
     assert (tmp_path / "metrics.json").is_file()
     assert (tmp_path / "tables" / "table3.csv").is_file() and (tmp_path / "tables" / "table4.md").is_file()

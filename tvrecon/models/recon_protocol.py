@@ -7,8 +7,8 @@ Every test batch is evaluated in the modes of the network (see :mod:`tvrecon.rep
 - ``mode="visual_only"``: ``"visual"``;
 - ``mode="tactile_only"``: ``"tactile@k"`` (the network blanks the view itself).
 
-With ``touch_controls`` a model that reads touches is also tested with its most touches whose content is replaced
-(the positions kept, so the same pixels receive an embedding): ``"<mode>:other"`` takes the tactile images and
+With ``touch_controls`` a model that reads touches is also tested at every touch count with the touches' content
+replaced (the positions kept, so the same pixels receive an embedding): ``"<mode>:other"`` takes the tactile images and
 directions of the next sample in the batch (another object; batches of one sample are skipped), ``"<mode>:blank"``
 zero tactile images. A model that has learned to read the touches does worse in both than with its own.
 
@@ -56,8 +56,7 @@ class ReconstructionTestProtocol:
         modes = [] if self.modality == "tactile" else [("visual", 0)]
         modes += [(f"{prefix}@{k}", k) for k in self.eval_touches]
         if self.hparams.get("touch_controls"):
-            k = self.eval_touches[-1]
-            modes += [(f"{prefix}@{k}:{control}", k) for control in TOUCH_CONTROLS]
+            modes += [(f"{prefix}@{k}:{control}", k) for k in self.eval_touches for control in TOUCH_CONTROLS]
         if self.hparams.get("refine"):
             modes += [(f"{prefix}@{k}+refine", k) for k in self.eval_touches]
         return modes

@@ -11,7 +11,7 @@ Reconstruction (``tvrecon.models.lit_recon.ReconstructionModule.test_results``):
 
 Mode keys: ``"visual"`` (no touch: the visual-only model, or a fusion model with every touch masked out),
 ``"tactile@k"`` (blank view, first k touches), ``"tv@k"`` (view and first k touches), and with ``touch_controls``
-``"<mode>:other"`` / ``"<mode>:blank"`` (the most touches with another object's or zero tactile content).
+``"<mode>:other"`` / ``"<mode>:blank"`` (k touches with another object's or zero tactile content).
 Chamfer values are already scaled by 1e3 (the paper's "x 1e-3" unit).
 
 Classification (``tvrecon.models.lit_cls.ClassificationModule.test_results``)::
