@@ -180,6 +180,33 @@ def test_touch_controls_table_only_for_models_tested_with_them() -> None:
     assert format_tables(tables).index("Table 4") < format_tables(tables).index("Touch controls")
 
 
+def test_touch_controls_get_a_row_at_every_touch_count_tested() -> None:
+    modes = {"visual": 20.0, "tv@2": 9.0, "tv@2:other": 15.0, "tv@2:blank": 19.0, "tv@5": 7.0}
+    modes |= {"tv@5:other": 16.0, "tv@5:blank": 20.5}
+    rows = _csv_rows(build_tables([_recon("chart_based", "tactile_visual", modes)])["touch_controls"].to_csv())
+    assert rows[1:] == [
+        ["Chart-based (Smith et al. 2020)", "2", "20.00", "9.00", "15.00", "19.00"],
+        ["Chart-based (Smith et al. 2020)", "5", "20.00", "7.00", "16.00", "20.50"],
+    ]
+
+
+def test_table3_assembles_the_chart_based_row_like_the_papers_and_borrows_a_missing_visual() -> None:
+    chart = [
+        _recon("chart_based", "tactile_visual", {"visual": 14.0 + s, "tv@2": 9.0 + s, "tv@10": 6.0 + s})
+        for s in (0.0, 1.0)
+    ]
+    chart_tactile = _recon("chart_based_tactile", "tactile", {"tactile@10": 17.0})
+    rows = _csv_rows(build_table3([*chart, chart_tactile]).to_csv())
+    layout = next(r for r in rows if r[0] == "Chart-based (paper layout)")
+    # no chart_based_visual run: the Visual column is chart_based's own, touches masked out (starred)
+    assert layout[1:] == ["14.50*", "-", "-", "17.00", "9.50", "-", "6.50"]
+    with_visual = [*chart, chart_tactile, _recon("chart_based_visual", "visual", {"visual": 13.0})]
+    layout = next(r for r in _csv_rows(build_table3(with_visual).to_csv()) if r[0] == "Chart-based (paper layout)")
+    assert layout[1] == "13.00"
+    # a T&V model alone gets no assembled row: its own row already says everything
+    assert not [r for r in _csv_rows(build_table3(chart).to_csv()) if "paper layout" in r[0]]
+
+
 def test_refined_modes_get_their_own_table3_row() -> None:
     vis = _recon("visual_only", "visual", {"visual": 13.5, "visual+refine@2": 12.0, "visual+refine@5": 10.0}, {})
     full = _recon("full", "tactile_visual", {"visual": 14.0, "tv@2": 12.5, "tv@2+refine": 11.0}, {})

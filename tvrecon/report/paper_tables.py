@@ -13,6 +13,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from tvrecon.report.cls_report import build_table2
+from tvrecon.report.method_rows import method_rows, touch_ratio
 from tvrecon.report.paper_numbers import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4, PAPER_TABLE4_CLASSES
 from tvrecon.report.seed_summary import mean_std_cell
 from tvrecon.report.table_format import (
@@ -35,18 +36,24 @@ __all__ = ["build_table1", "build_table2_vs_paper", "build_table3_vs_paper", "bu
 LABELS: dict[str, str] = {"full": "The paper's fusion model (`full`)"}
 
 
+def _schedule_words(
+    epochs: int | None, precision: str | None, common_epochs: int | None, common_precision: str
+) -> list[str]:
+    """The epochs and the precision of a row where they differ from the most common ones (``["24 epochs"]``)."""
+    words = []
+    if epochs is not None and epochs != common_epochs:
+        words.append(f"{epochs} epochs")
+    if precision is not None and precision != common_precision:
+        words.append(precision)
+    return words
+
+
 def _group_label(
     name: str, epochs: int | None, fixed: bool, precision: str | None, common_epochs: int | None, common_precision: str
 ) -> str:
     label = LABELS.get(name, PRETTY_NAMES.get(name, name))
-    extra = []
-    if fixed:
-        extra.append("visual path fixed")
-    if epochs is not None and epochs != common_epochs:
-        extra.append(f"{epochs} epochs")
-    if precision is not None and precision != common_precision:
-        extra.append(precision)
-    return ", ".join([label, *extra])
+    extra = ["visual path fixed"] if fixed else []
+    return ", ".join([label, *extra, *_schedule_words(epochs, precision, common_epochs, common_precision)])
 
 
 def _cell(runs: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
@@ -66,11 +73,16 @@ def seed_groups(results: Iterable[Mapping[str, Any]]) -> list[tuple[str, list[Ma
     for r in recon:
         key = (str(r["name"]), r.get("epochs"), bool(r.get("fixed_visual")), r.get("precision"))
         groups.setdefault(key, []).append(r)
+    common, common_precision = _common_schedule(recon)
+    return [(_group_label(n, e, f, p, common, common_precision), runs) for (n, e, f, p), runs in groups.items()]
+
+
+def _common_schedule(recon: Sequence[Mapping[str, Any]]) -> tuple[int | None, str]:
+    """The most common epochs (None where no result says) and training precision (``32-true`` where none says)."""
     epochs = [r.get("epochs") for r in recon if r.get("epochs") is not None]
     common = max(set(epochs), key=epochs.count) if epochs else None
     precisions = [str(r.get("precision")) for r in recon if r.get("precision") is not None]
-    common_precision = max(set(precisions), key=precisions.count) if precisions else "32-true"
-    return [(_group_label(n, e, f, p, common, common_precision), runs) for (n, e, f, p), runs in groups.items()]
+    return common, max(set(precisions), key=precisions.count) if precisions else "32-true"
 
 
 def _mean(runs: Sequence[Mapping[str, Any]], mode: str) -> float | None:
@@ -90,6 +102,7 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
     header = ["Model", "Seeds", "Visual"] + [f"Tactile {t}" for t in touches] + [f"T&V {t}" for t in touches]
     header.append(f"T&V {k} / Visual")
     rows: list[list[str]] = []
+    layouts: list[str] = []
     for label, cells in PAPER_TABLE3.items():
         row = [f"Paper: {label}", "-", fmt(cells.get("visual"))]
         row += [fmt(cells.get(f"tactile@{t}")) for t in touches] + [fmt(cells.get(f"tv@{t}")) for t in touches]
@@ -98,6 +111,30 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
     groups = seed_groups(results)
     visual = [runs for _, runs in groups if str(runs[0]["name"]) == "visual_only"]
     starred = False
+    recon = [r for r in results if r["task"] == "reconstruction"]
+    common, common_precision = _common_schedule(recon)
+    for m in method_rows(recon):  # the paper's two rows on our data, each column from its own experiment
+        label = ", ".join([f"On our data: {m.method.label}", *_schedule_words(*m.schedule, common, common_precision)])
+        row = [label, _seeds(m.tactile_visual or m.tactile)]
+        row.append(_cell(m.visual, ["visual"]) + ("*" if m.visual_from_touch_model else "") if m.visual else "-")
+        row += [_cell(m.tactile, [f"tactile@{t}"]) if m.tactile else "-" for t in touches]
+        row += [_cell(m.tactile_visual, [f"tv@{t}"]) if m.tactile_visual else "-" for t in touches]
+        ratio = touch_ratio(m, k)
+        row.append(
+            "-" if ratio is None else f"{ratio[0]:.2f}x" + (f" +- {ratio[1]:.2f}" if len(m.tactile_visual) > 1 else "")
+        )
+        rows.append(row)
+        starred |= m.visual_from_touch_model
+        layouts.append(
+            f"On our data: {m.method.label}: Visual from `{m.method.visual}`"
+            + (
+                f" (no run: `{m.method.tactile_visual}` with every touch masked out, starred)"
+                if m.visual_from_touch_model
+                else ""
+            )
+            + f", Tactile from `{m.method.tactile}`, T&V from `{m.method.tactile_visual}`; T&V {k} / Visual over "
+            f"`{m.method.tactile_visual}`'s seeds against the mean Visual."
+        )
     for label, runs in groups:
         # Pixel2Mesh trained the same way (epochs, precision) where there is one, else the first visual-only row
         same = [v for v in visual if all(v[0].get(k) == runs[0].get(k) for k in ("epochs", "precision"))]
@@ -119,6 +156,7 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
         f"T&V {k} / Visual: the row's chamfer with {k} touches over Pixel2Mesh's (the paper's Visual column; ours: "
         "the mean over the seeds of the visual-only model trained the same way).",
     ]
+    notes += list(dict.fromkeys(layouts))
     if results:
         notes.append(data_note([r for r in results if r["task"] == "reconstruction"]))
     if starred:

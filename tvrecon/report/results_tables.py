@@ -244,9 +244,10 @@ def _bench_figure(suite: str, m: Mapping[str, Any]) -> str:
             for x in m["runs"]
         )
     if suite == "train_step":
-        return "; ".join(
-            f"{x['mode']} {x['speedup_median']:.2f}x (minima {x['speedup_min']:.2f}x)" for x in m["modes"]
-        ) + f" faster than the training step of {m['baseline']} (ratio of medians over repeats, {m['precision']})"
+        return (
+            "; ".join(f"{x['mode']} {x['speedup_median']:.2f}x (minima {x['speedup_min']:.2f}x)" for x in m["modes"])
+            + f" faster than the training step of {m['baseline']} (ratio of medians over repeats, {m['precision']})"
+        )
     if suite == "collider_refine":
         r = m["results"]
         return "; ".join(

@@ -37,6 +37,7 @@ from typing import Any
 
 from tvrecon.data.shapes.registry import RECON_CLASSES
 from tvrecon.report.cls_report import build_table2, write_classification_plots
+from tvrecon.report.method_rows import method_rows
 from tvrecon.report.seed_summary import build_seed_summary
 from tvrecon.report.table_format import (
     PRETTY_NAMES,
@@ -130,18 +131,21 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
         "Chamfer distance x1e-3 (1,000 points sampled on the predicted and ground-truth surfaces), lower is better.",
         data_note(recon),
     ]
-    by_name = {str(r["name"]): r for r in recon}
-    if "full" in by_name and ("visual_only" in by_name or "tactile_only" in by_name):
-        full = by_name["full"]
-        vis = by_name.get("visual_only")
-        tac = by_name.get("tactile_only")
-        row = ["Ours (paper layout)", fmt(_chamfer(vis, "visual")) if vis else "-"]
-        row += [fmt(_chamfer(tac, f"tactile@{k}")) if tac else "-" for k in touches]
-        row += [fmt(_chamfer(full, f"tv@{k}")) for k in touches]
+    layouts = []
+    for m in method_rows(recon):
+        if not m.tactile and (m.visual_from_touch_model or not m.visual):
+            continue  # no experiment beside the Tactile & Visual one: its own row says it all
+        starred |= m.visual_from_touch_model
+        visual_from = f"{m.method.tactile_visual}*" if m.visual_from_touch_model else m.method.visual
+        row = [m.method.layout_label, _mean_cell(m.visual, "visual") + ("*" if m.visual_from_touch_model else "")]
+        row += [_mean_cell(m.tactile, f"tactile@{k}") for k in touches]
+        row += [_mean_cell(m.tactile_visual, f"tv@{k}") for k in touches]
         rows.append(row)
-        notes.append(
-            "Ours (paper layout): Visual from visual_only, Tactile from tactile_only, Tactile & Visual from full."
+        layouts.append(
+            f"{m.method.layout_label}: Visual from {visual_from}, Tactile from {m.method.tactile}, "
+            f"Tactile & Visual from {m.method.tactile_visual} (the mean over their seeds)."
         )
+    notes += list(dict.fromkeys(layouts))
     if refined:
         notes.append(
             "+ touch refinement: the model's prediction pulled smoothly onto the touches' contact patches at test time "
@@ -150,6 +154,14 @@ def build_table3(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = 
     if starred:
         notes.append(VISUAL_FOOTNOTE)
     return Table("Table 3: mesh reconstruction, chamfer x1e-3", header, rows, notes)
+
+
+def _mean_cell(runs: Sequence[Mapping[str, Any]], mode: str) -> str:
+    """The mean chamfer of ``mode`` over ``runs``; ``-`` unless every run has it."""
+    values = [_chamfer(r, mode) for r in runs]
+    if not values or None in values:
+        return "-"
+    return fmt(sum(values) / len(values))  # type: ignore[arg-type]
 
 
 def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | None = None) -> Table:
@@ -190,8 +202,8 @@ def build_table4(results: Iterable[Mapping[str, Any]], classes: Sequence[str] | 
 
 
 def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
-    """Touch controls: chamfer (x1e-3) with the model's most touches, own vs replaced content (``:other``,
-    ``:blank`` modes of ``touch_controls``), one row per model that was tested with them."""
+    """Touch controls: chamfer (x1e-3) with k touches, own vs replaced content (``:other``, ``:blank`` modes of
+    ``touch_controls``), one row per model and touch count it was tested with them at."""
     recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
     recon = [r for r in recon if any(":" in m for m in r["modes"])]
     names = [str(r["name"]) for r in recon]
@@ -199,11 +211,12 @@ def build_touch_controls(results: Iterable[Mapping[str, Any]]) -> Table:
     header = ["Model", "Touches", "No touch", "Own touches", "Another object's touches", "Blank tactile images"]
     rows = []
     for r in recon:
-        base = primary_mode(r)
-        rows.append(
-            [_label(r, duplicates), base.split("@")[1], fmt(_chamfer(r, "visual"))]
-            + [fmt(_chamfer(r, m)) for m in (base, f"{base}:other", f"{base}:blank")]
-        )
+        bases = dict.fromkeys(m.split(":")[0] for m in r["modes"] if ":" in m)  # "tv@k" / "tactile@k" with controls
+        for base in sorted(bases, key=lambda b: int(b.split("@")[1])):
+            rows.append(
+                [_label(r, duplicates), base.split("@")[1], fmt(_chamfer(r, "visual"))]
+                + [fmt(_chamfer(r, m)) for m in (base, f"{base}:other", f"{base}:blank")]
+            )
     notes = [
         "Chamfer x1e-3 with the touches' positions kept and their content replaced: another object's tactile images "
         "and directions (the next sample of the batch), or zero tactile images. A model that reads its touches does "
