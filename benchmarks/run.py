@@ -29,6 +29,7 @@ from pathlib import Path
 import torch
 
 from benchmarks._common import ROOT
+from tvrecon.report.provenance import git_commit, machine
 from tvrecon.utils.atomic import atomic_write_text
 
 SUITE: dict[str, list[str]] = {
@@ -45,34 +46,9 @@ JSON_OUT = {"bench_gpu"}  # scripts with ``--out FILE.json``
 THREADED = {"bench_sim", "bench_press", "bench_gpu", "bench_train_step"}  # scripts with ``--threads``
 
 
-def machine() -> str:
-    """The CPU model and its core count, and the GPU when torch sees one, e.g. ``AMD EPYC 7R13 x2 + NVIDIA H100``."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    name = f"{cpu} x{os.cpu_count()}"
-    if torch.cuda.is_available():
-        name += f" + {torch.cuda.get_device_name(0)}"
-    return name
-
-
 def commit() -> str | None:
     """The short commit of the work tree, ``-dirty`` when it has changes; None outside a git checkout."""
-    try:
-        rev = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True, text=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return rev + ("-dirty" if dirty else "")
+    return git_commit(ROOT)
 
 
 def key(info: dict) -> str:
