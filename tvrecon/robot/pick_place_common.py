@@ -1,4 +1,5 @@
-"""What the pick-and-place demos of both engines share: the phases they log and the object they pick.
+"""What the pick-and-place demos of both engines share: the phases they log, the object they pick and the settings
+their configurations have in common (:class:`PickPlaceSettings`).
 
 The object is a procedural class of the object library, a ``pybullet_data`` mesh by name (when pybullet is installed)
 or any mesh file, scaled to its size and centred on its centre of mass before an engine builds its body.
@@ -8,16 +9,48 @@ from __future__ import annotations
 
 import importlib.util
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from tvrecon.robot.pad_config import PadConfig
 from tvrecon.utils.geometry import check_mesh, read_mesh_file
 
-__all__ = ["PHASES", "load_object_mesh", "prepare_object_mesh", "resolve_object_mesh"]
+__all__ = ["PHASES", "PickPlaceSettings", "load_object_mesh", "prepare_object_mesh", "resolve_object_mesh"]
 
 PHASES = ("approach", "contact", "squeeze", "lift", "carry", "place", "release")
+
+
+@dataclass
+class PickPlaceSettings:
+    """The settings both engines' pick-and-place configurations share (each adds its scene, camera and timing).
+
+    object: a procedural class (``tvrecon.data.shapes``), a ``pybullet_data`` mesh name (``duck``) or a mesh path.
+    place_xy: (2,) where the object is put down. approach_height / lift_height: metres above the grasp height.
+    speed: Cartesian hand speed, m/s. contact_force / grip_force: N per finger while closing / after the squeeze.
+    render_size: (W, H) of the scene frames. out_dir: where the GIF, MP4, strip and log go.
+    """
+
+    object: str = "can"
+    seed: int = 0
+    mesh: trimesh.Trimesh | None = None  # a mesh given directly through the Python API (overrides ``object``)
+    place_xy: tuple[float, float] = (0.5, 0.15)
+    approach_height: float = 0.10
+    lift_height: float = 0.12
+    speed: float = 0.2
+    contact_force: float = 6.0
+    grip_force: float = 40.0
+    render: bool = True
+    render_size: tuple[int, int] = (256, 192)
+    out_dir: str = "outputs/robot"
+    write_gif: bool = True
+    write_mp4: bool = True  # needs imageio-ffmpeg ([robot] extra); skipped with a warning when missing
+    write_strip: bool = True
+    progress: bool = True
+    torch_threads: int | None = 1  # small EIP presses run fastest single-threaded; None keeps torch's setting
+    pad: PadConfig = field(default_factory=PadConfig)
 
 
 def prepare_object_mesh(mesh: trimesh.Trimesh, size: float) -> trimesh.Trimesh:

@@ -7,11 +7,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from tvrecon.robot.grasp import GraspPlan
 from tvrecon.robot.mujoco.scene import MujocoSceneConfig
-from tvrecon.robot.pad_config import PadConfig
+from tvrecon.robot.pick_place_common import PickPlaceSettings
 from tvrecon.utils.config_utils import coerce_config
 
 __all__ = ["MujocoCameraConfig", "MujocoPickPlaceConfig", "MujocoPickPlaceResult"]
@@ -30,42 +29,23 @@ class MujocoCameraConfig:
 
 
 @dataclass
-class MujocoPickPlaceConfig:
-    """Everything the MuJoCo demo needs (mirrors ``configs/robot/mujoco_pick_place.yaml``).
+class MujocoPickPlaceConfig(PickPlaceSettings):
+    """Everything the MuJoCo demo needs (mirrors ``configs/robot/mujoco_pick_place.yaml``): the shared settings
+    (:class:`~tvrecon.robot.pick_place_common.PickPlaceSettings`) and these.
 
-    object: a procedural class (``tvrecon.data.shapes``), a ``pybullet_data`` mesh name (``duck``) or a mesh path.
-    place_xy: (2,) where the object is put down. lift_height: metres above the grasp height. speed: m/s of the
-    grasp point. contact_force / grip_force: N per finger while closing / after the squeeze. squeeze_time,
-    settle_time, release_time: seconds. frame_every: physics steps per logged frame (each logged frame reads the
-    pads). render_size: (W, H) of the scene frames.
+    squeeze_time, settle_time, release_time: seconds. frame_every: physics steps per logged frame (each logged frame
+    reads the pads).
     """
 
-    object: str = "can"
-    seed: int = 0
-    mesh: trimesh.Trimesh | None = None  # a mesh given directly through the Python API (overrides ``object``)
-    place_xy: tuple[float, float] = (0.5, 0.15)
-    approach_height: float = 0.10
-    lift_height: float = 0.12
-    speed: float = 0.2
-    contact_force: float = 6.0
-    grip_force: float = 40.0
     squeeze_time: float = 0.4
     settle_time: float = 0.16
     release_time: float = 0.3
     frame_every: int = 10
-    render: bool = True
-    render_size: tuple[int, int] = (256, 192)
     render_eye: tuple[float, float, float] = (0.92, 0.0, 0.78)
     render_target: tuple[float, float, float] = (0.5, 0.0, 0.5)
     out_dir: str = "outputs/robot_mujoco"
-    write_gif: bool = True
-    write_mp4: bool = True
-    write_strip: bool = True
-    progress: bool = True
-    torch_threads: int | None = 1
     scene: MujocoSceneConfig = field(default_factory=MujocoSceneConfig)
     camera: MujocoCameraConfig = field(default_factory=MujocoCameraConfig)
-    pad: PadConfig = field(default_factory=PadConfig)
 
     @classmethod
     def from_dict(cls, d: dict) -> MujocoPickPlaceConfig:
