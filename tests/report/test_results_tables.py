@@ -169,6 +169,21 @@ def test_headline_links_follow_the_page(tiny_results: Path) -> None:
     assert "0.38x" in readme and "0.50x" in readme  # the paper's ratio and ours
 
 
+def test_headline_and_table3_name_the_chart_based_row_beside_the_papers(tiny_results: Path) -> None:
+    (tiny_results / "table1").mkdir()
+    cmd = "python train.py experiment=chart_based data=tiny trainer.max_epochs=3 seed={}"
+    for seed, tv in ((1, 6.0), (2, 8.0)):
+        chart = _recon("chart_based", seed, 14.0, {2: 9.0, 5: 8.0, 10: tv})
+        _write_run(tiny_results / "table3" / f"chart_based_s{seed}", chart, cmd.format(seed))
+    headline = render("headline", tiny_results)
+    assert "Chart-based 5.83 (0.43x)" in headline  # the paper's row
+    assert "Chart-based 7.00 +- 1.41 (0.50x its Visual, 2 seeds)" in headline  # 7 / 14: its touches masked out
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in
+            render("table3", tiny_results).splitlines() if line.startswith("| ")}  # fmt: skip
+    assert rows["On our data: Chart-based (Smith et al. 2020)"][1] == "14.00 +- 0.00*"
+    assert rows["On our data: Chart-based (Smith et al. 2020)"][-1] == "0.50x +- 0.10"
+
+
 def test_unknown_block_and_missing_manifest_are_clear_errors(tiny_results: Path) -> None:
     with pytest.raises(ValueError, match="unknown results block 'table9'.*headline"):
         render("table9", tiny_results)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tvrecon.report.method_rows import method_rows, touch_ratio
 from tvrecon.report.paper_numbers import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4, PAPER_TABLE4_CLASSES
 from tvrecon.report.paper_tables import (
     build_table1,
@@ -370,6 +371,19 @@ def render_headline(root: Path) -> str:
         if "touch_geometry" in groups3:
             tg = [r["modes"]["tv@10"]["chamfer"] for r in groups3["touch_geometry"]]
             line += f"; touch geometry {_mean_cell(tg)} ({(sum(tg) / len(tg)) / (sum(vis) / len(vis)):.2f}x)"
+        schedule = (groups3["full"][0].get("epochs"), groups3["full"][0].get("precision"))
+        chart = [m for m in method_rows(results) if m.method.tactile_visual == "chart_based" and m.schedule == schedule]
+        chart_ratio = touch_ratio(chart[0], 10) if chart else None
+        if chart_ratio is not None:
+            tv = [r["modes"]["tv@10"]["chamfer"] for r in chart[0].tactile_visual]
+            line += f"; Chart-based {_mean_cell(tv)} ({chart_ratio[0]:.2f}x its Visual, {_n_seeds(len(tv))})"
+            chart_paper = PAPER_TABLE3["Chart-based (Smith et al. 2020)"]
+            line = line.replace(
+                " | Pixel2Mesh ",
+                f"; Chart-based {chart_paper['tv@10']} ({chart_paper['tv@10'] / chart_paper['visual']:.2f}x) | "
+                "Pixel2Mesh ",
+                1,
+            )
         lines.append(
             line + f"; `{preset}`, {groups3['full'][0].get('epochs')} epochs | [table3](docs/reproduce/table3.md) |"
         )
