@@ -184,6 +184,36 @@ def test_headline_and_table3_name_the_chart_based_row_beside_the_papers(tiny_res
     assert rows["On our data: Chart-based (Smith et al. 2020)"][-1] == "0.50x +- 0.10"
 
 
+def test_controls_block_gives_every_touch_count_its_seed_means(tiny_results: Path) -> None:
+    cmd = "python train.py experiment=chart_based data=tiny trainer.max_epochs=3 seed={}"
+    for seed, other in ((1, 12.0), (2, 14.0)):
+        chart = _recon("chart_based", seed, 14.0, {5: 8.0, 10: 6.0})
+        for k in (5, 10):
+            chart["modes"] |= {f"tv@{k}:other": {"chamfer": other + k}, f"tv@{k}:blank": {"chamfer": 14.0}}
+        _write_run(tiny_results / "table3" / f"chart_based_s{seed}", chart, cmd.format(seed))
+    rows = [line.split("|")[1:-1] for line in render("table3_controls", tiny_results).splitlines()[4:6]]
+    assert [[c.strip() for c in r] for r in rows] == [
+        [
+            "Chart-based (Smith et al. 2020)",
+            "1, 2",
+            "5",
+            "14.00 +- 0.00",
+            "8.00 +- 0.00",
+            "18.00 +- 1.41",
+            "14.00 +- 0.00",
+        ],
+        [
+            "Chart-based (Smith et al. 2020)",
+            "1, 2",
+            "10",
+            "14.00 +- 0.00",
+            "6.00 +- 0.00",
+            "23.00 +- 1.41",
+            "14.00 +- 0.00",
+        ],
+    ]  # the full run of the fixture has no controls: no row
+
+
 def test_unknown_block_and_missing_manifest_are_clear_errors(tiny_results: Path) -> None:
     with pytest.raises(ValueError, match="unknown results block 'table9'.*headline"):
         render("table9", tiny_results)

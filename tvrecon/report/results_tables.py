@@ -37,7 +37,7 @@ from tvrecon.report.paper_tables import (
     build_table4_vs_paper,
     seed_groups,
 )
-from tvrecon.report.seed_summary import build_seed_summary
+from tvrecon.report.seed_summary import build_controls_over_seeds, build_seed_summary
 from tvrecon.report.table_format import PRETTY_NAMES, Table, mean_std
 from tvrecon.utils.atomic import atomic_write_text
 
@@ -151,6 +151,11 @@ def render_table4(root: Path) -> str:
 def render_table3_touches(root: Path) -> str:
     _, results = _recon(root)
     return build_seed_summary(results).to_markdown(compact=True)
+
+
+def render_table3_controls(root: Path) -> str:
+    _, results = _recon(root)
+    return build_controls_over_seeds(results).to_markdown(compact=True)
 
 
 def _cls(root: Path) -> tuple[list[Run], list[Run]]:
@@ -410,6 +415,7 @@ RENDERERS: dict[str, Callable[[Path], str]] = {
     "table2": render_table2,
     "table3": render_table3,
     "table3_touches": render_table3_touches,
+    "table3_controls": render_table3_controls,
     "table4": render_table4,
     "benchmarks": render_benchmarks,
 }

@@ -1,5 +1,6 @@
 """Mean +- std over seeds of the reconstruction modes that decide whether touch helps (runs of one experiment with
-several seeds, e.g. ``train.py -m experiment=touch_geometry seed=42,43``).
+several seeds, e.g. ``train.py -m experiment=touch_geometry seed=42,43``), and the touch controls at every touch count
+(:func:`build_controls_over_seeds`).
 
 One row per experiment name with at least two results; columns: no touch, Tactile & Visual with k touches, the
 same refined onto the touches' contact patches, and the touch controls at the most touches (another object's
@@ -14,7 +15,7 @@ from typing import Any
 
 from tvrecon.report.table_format import PRETTY_NAMES, RECON_TOUCHES, Table, check_results, mean_std, ordered_rows
 
-__all__ = ["build_seed_summary", "mean_std_cell"]
+__all__ = ["build_controls_over_seeds", "build_seed_summary", "mean_std_cell"]
 
 
 def mean_std_cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
@@ -62,3 +63,32 @@ def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[i
         f"Blank: the {k_max} touches' content replaced (touch_controls)."
     ]
     return Table("Over seeds: mean +- std", header, rows, notes)
+
+
+def build_controls_over_seeds(results: Iterable[Mapping[str, Any]]) -> Table:
+    """The touch controls at every touch count tested with them: own touches against another object's and blank
+    ones, mean +- std over the seeds of each experiment (and training precision), one row per touch count."""
+    recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
+    groups: dict[tuple[str, Any], list[Mapping[str, Any]]] = {}
+    for r in recon:
+        if not r.get("fixed_visual"):
+            groups.setdefault((str(r["name"]), r.get("precision")), []).append(r)
+    precisions = [str(r["precision"]) for r in recon if r.get("precision") is not None]
+    common = max(set(precisions), key=precisions.count) if precisions else None
+    header = ["Model", "Seeds", "Touches", "No touch", "Own touches", "Another object's", "Blank"]
+    rows = []
+    for (name, precision), runs in groups.items():
+        bases = [m.split(":")[0] for m in runs[0]["modes"] if m.endswith(":other")]
+        bases = [b for b in bases if all(f"{b}:other" in r["modes"] for r in runs)]
+        label = PRETTY_NAMES.get(name, name) + (f", {precision}" if precision not in (None, common) else "")
+        for base in sorted(bases, key=lambda b: int(b.split("@")[1])):
+            row = [label, ", ".join(str(r.get("seed", "?")) for r in runs), base.split("@")[1]]
+            row += [mean_std_cell(runs, [m]) for m in ("visual", base, f"{base}:other", f"{base}:blank")]
+            rows.append([c.replace(" +- 0.00", "") if len(runs) == 1 else c for c in row])
+    notes = [
+        "Chamfer x1e-3, mean +- sample std over the seeds (one seed: its value). The touches' positions are kept and "
+        "their content replaced: another object's tactile images, directions and contact patches (the next sample of "
+        "the batch), or blank tactile images and no patch. A model that reads its touches does worse with both than "
+        "with its own."
+    ]
+    return Table("Touch controls at every touch count", header, rows, notes)
