@@ -32,9 +32,7 @@ import datetime
 import json
 import math
 import os
-import platform
 import statistics
-import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -52,6 +50,7 @@ from tvrecon.losses.mesh import edge_length_loss, laplacian_loss, normal_loss
 from tvrecon.models.components.ellipsoid import unpool_features
 from tvrecon.models.lit_recon import ReconstructionModule
 from tvrecon.models.recon_batch import gt_to_camera, keep_first_touches
+from tvrecon.report.provenance import git_commit, machine
 from tvrecon.utils.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -420,16 +419,6 @@ def loader_waits(
     }
 
 
-def git_commit() -> str:
-    """The checkout's commit (``unknown`` outside git)."""
-    try:
-        return subprocess.run(
-            ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
@@ -487,10 +476,9 @@ def main() -> None:
     if args.out is not None:
         record = {
             "command": " ".join([Path(sys.executable).name, *sys.argv]),
-            "commit": git_commit(),
+            "commit": git_commit(ROOT) or "unknown",
             "baseline": args.baseline,
-            "machine": platform.node(),
-            "cpu": platform.processor() or platform.machine(),
+            "machine": machine(),
             "threads": torch.get_num_threads(),
             "torch": torch.__version__,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
