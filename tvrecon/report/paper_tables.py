@@ -56,14 +56,6 @@ def _group_label(
     return ", ".join([label, *extra, *_schedule_words(epochs, precision, common_epochs, common_precision)])
 
 
-def _cell(runs: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
-    """``mean +- std`` over the runs (:func:`mean_std_cell`); a single run's value alone."""
-    if len(runs) == 1:
-        mode = next((m for m in modes if m in runs[0]["modes"]), None)
-        return "-" if mode is None else fmt(float(runs[0]["modes"][mode]["chamfer"]))
-    return mean_std_cell(runs, modes)
-
-
 def seed_groups(results: Iterable[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, Any]]]]:
     """Reconstruction results grouped into rows: one per (experiment name, epochs, fixed visual path, training
     precision), in the paper's row order, each with a readable label (the epochs and the precision are named where
@@ -116,9 +108,11 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
     for m in method_rows(recon):  # the paper's two rows on our data, each column from its own experiment
         label = ", ".join([f"On our data: {m.method.label}", *_schedule_words(*m.schedule, common, common_precision)])
         row = [label, _seeds(m.tactile_visual or m.tactile)]
-        row.append(_cell(m.visual, ["visual"]) + ("*" if m.visual_from_touch_model else "") if m.visual else "-")
-        row += [_cell(m.tactile, [f"tactile@{t}"]) if m.tactile else "-" for t in touches]
-        row += [_cell(m.tactile_visual, [f"tv@{t}"]) if m.tactile_visual else "-" for t in touches]
+        row.append(
+            mean_std_cell(m.visual, ["visual"]) + ("*" if m.visual_from_touch_model else "") if m.visual else "-"
+        )
+        row += [mean_std_cell(m.tactile, [f"tactile@{t}"]) for t in touches]  # "-" where the experiment has no run
+        row += [mean_std_cell(m.tactile_visual, [f"tv@{t}"]) for t in touches]
         ratio = touch_ratio(m, k)
         row.append(
             "-" if ratio is None else f"{ratio[0]:.2f}x" + (f" +- {ratio[1]:.2f}" if len(m.tactile_visual) > 1 else "")
@@ -140,13 +134,13 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
         same = [v for v in visual if all(v[0].get(k) == runs[0].get(k) for k in ("epochs", "precision"))]
         same = same or [v for v in visual if v[0].get("precision") == runs[0].get("precision")] or visual
         reference = _mean(same[0], "visual") if same else None
-        visual_cell = _cell(runs, ["visual"])
+        visual_cell = mean_std_cell(runs, ["visual"])
         if visual_cell != "-" and runs[0].get("modality") == "tactile_visual":
             visual_cell += "*"
             starred = True
         row = [label, _seeds(runs), visual_cell]
-        row += [_cell(runs, [f"tactile@{t}"]) for t in touches]
-        row += [_cell(runs, [f"tv@{t}"]) for t in touches]
+        row += [mean_std_cell(runs, [f"tactile@{t}"]) for t in touches]
+        row += [mean_std_cell(runs, [f"tv@{t}"]) for t in touches]
         best = _mean(runs, f"tv@{k}")
         row.append(f"{best / reference:.2f}x" if best is not None and reference else "-")
         rows.append(row)

@@ -19,15 +19,18 @@ __all__ = ["build_controls_over_seeds", "build_seed_summary", "mean_std_cell"]
 
 
 def mean_std_cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> str:
-    """``mean +- std`` of the chamfer in the first of ``modes`` each result has; ``-`` unless every result has one."""
+    """``mean +- std`` of the chamfer in the first of ``modes`` each result has (one result: its value alone, it has no
+    spread); ``-`` unless every result has one."""
     values = []
     for r in results:
         mode = next((m for m in modes if m in r["modes"]), None)
         if mode is None:
             return "-"
         values.append(float(r["modes"][mode]["chamfer"]))
+    if not values:
+        return "-"
     mean, std = mean_std(values)
-    return f"{mean:.2f} +- {std:.2f}"
+    return f"{mean:.2f} +- {std:.2f}" if len(values) > 1 else f"{mean:.2f}"
 
 
 def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
@@ -84,7 +87,7 @@ def build_controls_over_seeds(results: Iterable[Mapping[str, Any]]) -> Table:
         for base in sorted(bases, key=lambda b: int(b.split("@")[1])):
             row = [label, ", ".join(str(r.get("seed", "?")) for r in runs), base.split("@")[1]]
             row += [mean_std_cell(runs, [m]) for m in ("visual", base, f"{base}:other", f"{base}:blank")]
-            rows.append([c.replace(" +- 0.00", "") if len(runs) == 1 else c for c in row])
+            rows.append(row)
     notes = [
         "Chamfer x1e-3, mean +- sample std over the seeds (one seed: its value). The touches' positions are kept and "
         "their content replaced: another object's tactile images, directions and contact patches (the next sample of "
