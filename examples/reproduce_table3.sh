@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Table 3 (and Table 4) of the paper: train the paper's models and ablations, then print the chamfer tables.
+# Table 3 (and Table 4) of the paper: train both of its rows (the paper's models and ablations, and the Chart-based
+# method of Smith et al. 2020 from the view, from touches and from both), then print the chamfer tables.
 #
 #   examples/reproduce_table3.sh            # the CPU proxy: data=paper_cpu (Table 1's sizes, half the authors' grid)
 #   examples/reproduce_table3.sh --gpu      # the paper's recipe: data=paper (the authors' pad and grid), trainer=gpu
@@ -29,8 +30,10 @@ if [ "${1:-}" = "--tiny" ] || [ "${1:-}" = "--gpu" ] || [ "${1:-}" = "--cpu" ]; 
   shift
 fi
 
-# the paper's Table 3 rows (visual only, tactile only, the full model) and Table 4's ablations
+# the paper's model (visual only, tactile only, the full model), Table 4's ablations and the Chart-based row
 models=full,visual_only,tactile_only,no_gap,no_direction,region_1x1,region_5x5,single_stage
+models+=,chart_based,chart_based_visual,chart_based_tactile
+charts=()  # tiny mode trains the Chart-based row in a second sweep into the same folder, at its own toy size
 case $mode in
   cpu)
     data=(data=paper_cpu)
@@ -41,13 +44,18 @@ case $mode in
     "$PY" -m tvrecon.data.generate preset=paper sim_device=cuda ${generate[@]+"${generate[@]}"}
     train=() ;;
   tiny)
-    # two models, tiny data, one short epoch: checks the pipeline end to end, not the numbers
+    # two models of each row, tiny data, one short epoch: checks the pipeline end to end, not the numbers
     models=full,visual_only
+    charts=(chart_based,chart_based_visual ++model.net.chart_deformer.hidden=16 ++model.net.chart_deformer.num_layers=2)
     data=(data=tiny data.train.num_samples=2 data.val.num_samples=1 data.test.num_samples=2 torch_threads=1)
     train=(trainer.max_epochs=1 model.net.deformer.hidden=16 model.net.deformer.num_blocks=1) ;;
 esac
 
 dir=$LOG_DIR/train/multiruns/table3_${mode}_$(date +%Y-%m-%d_%H-%M-%S)
 "$PY" train.py -m "experiment=$models" "${data[@]}" ${train[@]+"${train[@]}"} "${paths[@]}" "hydra.sweep.dir=$dir" "$@"
+if [ ${#charts[@]} -gt 0 ]; then
+  "$PY" train.py -m "experiment=${charts[0]}" "${data[@]}" trainer.max_epochs=1 "${charts[@]:1}" "${paths[@]}" \
+    "hydra.sweep.dir=$dir" "$@"
+fi
 "$PY" eval.py "run_dir=$dir" "${paths[@]}"
 echo "Tables 3 and 4: $dir"
