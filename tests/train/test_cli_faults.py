@@ -197,3 +197,22 @@ def test_eval_cli_classifier_on_reconstruction_data_is_one_line_exit_2(
     assert _run_script("eval.py", argv, monkeypatch) == 2
     line = _one_error_line(capsys.readouterr().err, "python eval.py")
     assert "holds a classifier" in line and "reconstruction data" in line and "data=" in line
+
+
+def test_a_refused_run_leaves_no_run_folder_and_a_refused_resume_keeps_its_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fresh = tmp_path / "fresh"
+    args = ["experiment=smoke", "model.optimizer.lr=-1", "~logger"]
+    assert _run_train_cli([*args, f"hydra.run.dir={fresh}"], monkeypatch) == 2
+    assert "model.optimizer.lr must be > 0" in _one_error_line(capsys.readouterr().err, "python train.py")
+    assert not fresh.exists() and tmp_path.is_dir()  # Hydra's folder for the refused run is gone, nothing above it
+    # the same mistake in the command that resumes a run: its folder and everything in it stay
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.ckpt").write_bytes(b"weights")
+    (run / "train.log").write_text("epoch 3 done\n")
+    assert _run_train_cli([*args, f"hydra.run.dir={run}"], monkeypatch) == 2
+    assert (run / "checkpoints" / "last.ckpt").read_bytes() == b"weights"
+    assert (run / "train.log").read_text().startswith("epoch 3 done")
+    assert (run / ".hydra" / "config.yaml").is_file()

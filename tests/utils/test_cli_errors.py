@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tvrecon.utils.cli_errors import RESUME_HINT, call_cli, cli_errors, exit_code, one_line
+from tvrecon.utils.cli_errors import RESUME_HINT, call_cli, cli_errors, exit_code, one_line, remove_refused_run_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -165,3 +165,24 @@ def test_shapes_bad_options_are_one_line(tmp_path: Path, capsys) -> None:
     assert "is not a directory" in _one_error_line(capsys.readouterr().err, prog)
     assert call_cli(shapes, ["--out", str(tmp_path), "--deform", "3"], prog=prog) == 2
     assert "deform must be a strength in [0, 0.5]" in _one_error_line(capsys.readouterr().err, prog)
+
+
+def test_remove_refused_run_dir_takes_only_what_hydra_wrote(tmp_path: Path) -> None:
+    def hydra_run(name: str) -> Path:
+        run = tmp_path / name
+        (run / ".hydra").mkdir(parents=True)
+        for f in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+            (run / ".hydra" / f).write_text("x: 1\n")
+        (run / "train.log").touch()
+        return run
+
+    assert remove_refused_run_dir(hydra_run("refused")) and not (tmp_path / "refused").exists()
+    assert not remove_refused_run_dir(tmp_path / "absent")
+    logged = hydra_run("logged")
+    (logged / "train.log").write_text("an earlier run's line\n")
+    ckpt = hydra_run("ckpt")
+    (ckpt / "checkpoints").mkdir()
+    extra = hydra_run("extra")
+    (extra / ".hydra" / "notes.txt").write_text("mine")
+    for kept in (logged, ckpt, extra):
+        assert not remove_refused_run_dir(kept) and (kept / ".hydra" / "config.yaml").is_file()

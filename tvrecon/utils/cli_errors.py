@@ -40,6 +40,7 @@ __all__ = [
     "debug_requested",
     "exit_code",
     "hydra_task",
+    "remove_refused_run_dir",
     "one_line",
     "run_cli",
     "run_hydra_cli",
@@ -243,12 +244,49 @@ def argv_and_env(
                 os.environ[key] = value
 
 
+#: what Hydra writes into a run folder before the task starts (besides the job's log)
+HYDRA_RUN_FILES = frozenset({"config.yaml", "hydra.yaml", "overrides.yaml"})
+
+
+def remove_refused_run_dir(run_dir: str | os.PathLike[str]) -> bool:
+    """Delete the run folder Hydra made for a run that its input checks refused; True if it was deleted.
+
+    Only a folder that holds nothing but Hydra's ``.hydra/`` files (:data:`HYDRA_RUN_FILES`) and empty ``*.log``
+    files goes: that is all Hydra writes before the task runs, and a folder with anything else in it (a checkpoint,
+    a metric, a log line of an earlier run resumed into the same folder) is kept as it is.
+    """
+    root = os.fspath(run_dir)
+    if not os.path.isdir(root):
+        return False
+    for entry in os.scandir(root):
+        if entry.name == ".hydra" and entry.is_dir(follow_symlinks=False):
+            inner = list(os.scandir(entry.path))
+            if any(e.name not in HYDRA_RUN_FILES or not e.is_file(follow_symlinks=False) for e in inner):
+                return False
+        elif not (entry.name.endswith(".log") and entry.is_file(follow_symlinks=False) and entry.stat().st_size == 0):
+            return False
+    import shutil
+
+    shutil.rmtree(root)
+    return True
+
+
+def _hydra_output_dir() -> str | None:
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        return str(HydraConfig.get().runtime.output_dir) if HydraConfig.initialized() else None
+    except Exception:  # no Hydra, or called outside a Hydra job
+        return None
+
+
 def hydra_task(prog: str, resume: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Decorator for a Hydra task function (under ``@hydra.main``): its errors end as one line in a single run.
 
     Inside a run the exception becomes the one line and ``SystemExit`` (which Hydra passes through without its
-    "Error executing job" banner). In a multirun (``-m``) the exception is re-raised so that Hydra finishes the
-    other jobs of the sweep first, as it does without this decorator.
+    "Error executing job" banner); a run refused for bad input (exit 2) leaves no run folder behind when that folder
+    holds only what Hydra wrote for it (:func:`remove_refused_run_dir`). In a multirun (``-m``) the exception is
+    re-raised so that Hydra finishes the other jobs of the sweep first, as it does without this decorator.
     """
 
     def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -256,8 +294,14 @@ def hydra_task(prog: str, resume: bool = False) -> Callable[[Callable[..., Any]]
         def task(*args: Any, **kwargs: Any) -> Any:
             if _in_multirun():
                 return fn(*args, **kwargs)
-            with cli_errors(prog, resume=resume):
-                return fn(*args, **kwargs)
+            try:
+                with cli_errors(prog, resume=resume):
+                    return fn(*args, **kwargs)
+            except _CliExit as done:
+                run_dir = _hydra_output_dir()
+                if done.code == EXIT_USAGE and run_dir is not None:
+                    remove_refused_run_dir(run_dir)
+                raise
 
         return task
 
