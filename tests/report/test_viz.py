@@ -84,3 +84,15 @@ def test_run_comparison_overlays_runs(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit):
         main(["compare", str(tmp_path / "a"), "--out", str(tmp_path / "e.png")])  # no LABEL=
     assert "LABEL=RUN_DIR" in capsys.readouterr().err
+
+
+
+def test_run_comparison_without_out_writes_under_outputs(tmp_path: Path, monkeypatch, capsys) -> None:
+    from tvrecon.report.viz import main
+
+    (tmp_path / "a" / "csv").mkdir(parents=True)
+    (tmp_path / "a" / "csv" / "metrics.csv").write_text("epoch,step,train/loss,val/chamfer\n0,0,1.0,\n0,9,,30\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["compare", "a=a"]) == 0
+    (png,) = (tmp_path / "outputs" / "compare").glob("*/compare.png")
+    assert png.stat().st_size > 1000 and f"outputs in {png.parent}" in capsys.readouterr().out

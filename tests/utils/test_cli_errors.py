@@ -167,6 +167,16 @@ def test_shapes_bad_options_are_one_line(tmp_path: Path, capsys) -> None:
     assert "deform must be a strength in [0, 0.5]" in _one_error_line(capsys.readouterr().err, prog)
 
 
+
+def test_shapes_without_out_writes_under_outputs(tmp_path: Path, monkeypatch, capsys) -> None:
+    from tvrecon.data.shapes.__main__ import main as shapes
+
+    monkeypatch.chdir(tmp_path)
+    path = shapes(["--instances", "1", "--size", "16"])
+    assert path.parent.parent == Path("outputs") / "shapes" and (tmp_path / path).stat().st_size > 1000
+    assert f"outputs in {(tmp_path / path).parent}" in capsys.readouterr().out
+
+
 def test_remove_refused_run_dir_takes_only_what_hydra_wrote(tmp_path: Path) -> None:
     def hydra_run(name: str) -> Path:
         run = tmp_path / name

@@ -3,7 +3,9 @@
 
 Compare runs (one panel per metric, one line per run) from the command line::
 
-    python -m tvrecon.report.viz compare visual=runs/small/visual_only full=runs/small/full --out compare.png
+    python -m tvrecon.report.viz compare visual=runs/small/visual_only full=runs/small/full [--out compare.png]
+
+Without ``--out`` the figure goes to ``outputs/compare/<time>/compare.png``, like every command of the project.
 
 Everything renders with matplotlib's Agg backend (headless) and writes atomically (temporary file in the
 target folder, then ``os.replace``).
@@ -23,6 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from tvrecon.utils.atomic import save_and_close  # noqa: E402
+from tvrecon.utils.output_dir import announce, default_output_dir  # noqa: E402
 
 
 def read_metrics_csv(path: str | Path) -> dict[str, list[tuple[float, float]]]:
@@ -135,12 +138,12 @@ def plot_run_comparison(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m tvrecon.report.viz compare LABEL=RUN ... --out PNG [--keys val/chamfer train/loss]``."""
+    """``python -m tvrecon.report.viz compare LABEL=RUN ... [--out PNG] [--keys val/chamfer train/loss]``."""
     ap = argparse.ArgumentParser(prog="python -m tvrecon.report.viz", description="Figures of training runs.")
     sub = ap.add_subparsers(dest="command", required=True)
     cmp = sub.add_parser("compare", help="overlay logged metrics of several runs (one line per run)")
     cmp.add_argument("runs", nargs="+", help="LABEL=RUN_DIR (a train.py run folder) or LABEL=metrics.csv")
-    cmp.add_argument("--out", required=True, help="output PNG")
+    cmp.add_argument("--out", default=None, help="output PNG (default outputs/compare/<time>/compare.png)")
     cmp.add_argument("--keys", nargs="+", default=["val/chamfer", "train/loss"], help="logged columns to plot")
     args = ap.parse_args(argv)
     runs: dict[str, str] = {}
@@ -150,10 +153,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error(f"runs are LABEL=RUN_DIR, got {item!r}")
         runs[label] = run
     try:
-        out = plot_run_comparison(runs, args.out, args.keys)
+        out = plot_run_comparison(runs, args.out or default_output_dir("compare") / "compare.png", args.keys)
     except ValueError as err:
         ap.error(str(err))
     print(f"wrote {out}")
+    announce(out.parent)
     return 0
 
 

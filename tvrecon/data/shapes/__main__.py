@@ -1,4 +1,7 @@
-"""``python -m tvrecon.data.shapes --out DIR [--instances 3]``: contact sheet PNG of every object class."""
+"""``python -m tvrecon.data.shapes [--out DIR] [--instances 3]``: contact sheet PNG of every object class.
+
+Without ``--out`` the sheet goes to ``outputs/shapes/<time>/``, like every command of the project.
+"""
 
 from __future__ import annotations
 
@@ -8,12 +11,13 @@ from pathlib import Path
 
 from tvrecon.data.shapes.library import SPLITS, ObjectLibrary
 from tvrecon.data.shapes.sheet import contact_sheet
+from tvrecon.utils.output_dir import announce, output_dir
 
 
 def main(argv: list[str] | None = None) -> Path:
     """Parse arguments, build ``instances`` objects per class from an ObjectLibrary and write the sheet."""
     parser = argparse.ArgumentParser(prog="python -m tvrecon.data.shapes", description=__doc__)
-    parser.add_argument("--out", required=True, type=Path, help="output directory")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default outputs/shapes/<time>)")
     parser.add_argument("--instances", type=int, default=3, help="instances per class (default 3)")
     parser.add_argument("--deform", type=float, default=0.0, help="deformation strength (default 0: raw shapes)")
     parser.add_argument("--user-root", type=Path, default=None, help="folder of user meshes, one subfolder per class")
@@ -26,12 +30,12 @@ def main(argv: list[str] | None = None) -> Path:
     path = contact_sheet(
         lambda cls, i: lib.get(cls, i, args.split),
         lib.classes,
-        args.out / "shapes_contact_sheet.png",
+        output_dir(args.out, "shapes") / "shapes_contact_sheet.png",
         instances=args.instances,
         size=args.size,
         columns=args.columns,
     )
-    print(path)
+    announce(path.parent)
     return path
 
 
