@@ -160,6 +160,8 @@ LONG: dict[str, str | None] = {
     ".venv/bin/python train.py experiment=full data=paper_cpu": "train",
     ".venv/bin/python train.py -m experiment=full,visual_only,tactile_only,no_gap,no_direction,region_1x1,region_5x5,"
     "single_stage data=paper trainer=gpu": "train",
+    ".venv/bin/python train.py -m experiment=chart_based,chart_based_visual,chart_based_tactile,full,visual_only,"
+    "tactile_only data=paper_cpu seed=42,43": "train",
     ".venv/bin/python eval.py run_dir=logs/train/multiruns/<time>": None,
     ".venv/bin/python train.py -m experiment=classify_paper_cpu data.library.protocol=shared_base "
     "model.num_touches=1,2,4,6,8,10 seed=0,1,2": "train",
