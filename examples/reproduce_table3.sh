@@ -46,7 +46,8 @@ case $mode in
   tiny)
     # two models of each row, tiny data, one short epoch: checks the pipeline end to end, not the numbers
     models=full,visual_only
-    charts=(chart_based,chart_based_visual ++model.net.chart_deformer.hidden=16 ++model.net.chart_deformer.num_layers=2)
+    charts=(chart_based,chart_based_visual trainer.max_epochs=1 ++model.net.chart_deformer.hidden=16
+            ++model.net.chart_deformer.num_layers=2)
     data=(data=tiny data.train.num_samples=2 data.val.num_samples=1 data.test.num_samples=2 torch_threads=1)
     train=(trainer.max_epochs=1 model.net.deformer.hidden=16 model.net.deformer.num_blocks=1) ;;
 esac
@@ -54,8 +55,7 @@ esac
 dir=$LOG_DIR/train/multiruns/table3_${mode}_$(date +%Y-%m-%d_%H-%M-%S)
 "$PY" train.py -m "experiment=$models" "${data[@]}" ${train[@]+"${train[@]}"} "${paths[@]}" "hydra.sweep.dir=$dir" "$@"
 if [ ${#charts[@]} -gt 0 ]; then
-  "$PY" train.py -m "experiment=${charts[0]}" "${data[@]}" trainer.max_epochs=1 "${charts[@]:1}" "${paths[@]}" \
-    "hydra.sweep.dir=$dir" "$@"
+  "$PY" train.py -m "experiment=${charts[0]}" "${data[@]}" "${charts[@]:1}" "${paths[@]}" "hydra.sweep.dir=$dir" "$@"
 fi
 "$PY" eval.py "run_dir=$dir" "${paths[@]}"
 echo "Tables 3 and 4: $dir"

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 import sys
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -40,8 +41,8 @@ __all__ = [
     "debug_requested",
     "exit_code",
     "hydra_task",
-    "remove_refused_run_dir",
     "one_line",
+    "remove_refused_run_dir",
     "run_cli",
     "run_hydra_cli",
 ]
@@ -265,8 +266,6 @@ def remove_refused_run_dir(run_dir: str | os.PathLike[str]) -> bool:
                 return False
         elif not (entry.name.endswith(".log") and entry.is_file(follow_symlinks=False) and entry.stat().st_size == 0):
             return False
-    import shutil
-
     shutil.rmtree(root)
     return True
 
