@@ -276,3 +276,24 @@ def test_table2_rows_and_captions_name_the_touches_and_the_split(tmp_path) -> No
     (loaded,) = collect_results([run])
     assert loaded["data_protocol"] == {"touch": "ConeTouchPolicy", "split": "unseen"}
     assert "Data: cone touches (random surface points), unseen split." in build_table2([loaded]).notes
+
+
+def test_seed_summary_puts_a_tactile_only_models_touches_under_its_touch_columns() -> None:
+    from tvrecon.report.seed_summary import build_seed_summary
+
+    tactile = [
+        {**_recon("tactile_only", "tactile", {"tactile@2": 28.0 + s, "tactile@10": 22.0 + s}), "seed": 42 + s}
+        for s in (0, 2)
+    ]
+    fusion = [{**_recon("full", "tactile_visual", {"visual": 12.0, "tv@10": 10.0 + s}), "seed": 42 + s} for s in (0, 2)]
+    table = build_seed_summary([*tactile, fusion[0], fusion[1], VIS])  # VIS: one seed, no row
+    rows = _csv_rows(table.to_csv())
+    header = rows[0]
+    assert header[3:6] == ["2 touches", "5 touches", "10 touches"]
+    by_name = {r[0]: dict(zip(header, r)) for r in rows[1:]}
+    assert set(by_name) == {"Tactile only", "Ours"}
+    assert by_name["Tactile only"]["No touch"] == "-" and by_name["Tactile only"]["5 touches"] == "-"
+    assert by_name["Tactile only"]["2 touches"] == "29.00 +- 1.41"
+    assert by_name["Tactile only"]["10 touches"] == "23.00 +- 1.41"
+    assert by_name["Ours"]["No touch"] == "12.00 +- 0.00" and by_name["Ours"]["10 touches"] == "11.00 +- 1.41"
+    assert "blank view" in table.to_markdown()

@@ -2,10 +2,10 @@
 several seeds, e.g. ``train.py -m experiment=touch_geometry seed=42,43``), and the touch controls at every touch count
 (:func:`build_controls_over_seeds`).
 
-One row per experiment name with at least two results; columns: no touch, Tactile & Visual with k touches, the
-same refined onto the touches' contact patches, and the touch controls at the most touches (another object's
-touches, blank images). For the visual-only model the refined columns are its no-touch prediction refined with k
-touches (``visual+refine@k``).
+One row per experiment name with at least two results; columns: no touch, Tactile & Visual with k touches (Tactile
+alone for the tactile-only models), the same refined onto the touches' contact patches, and the touch controls at the
+most touches (another object's touches, blank images). For the visual-only model the refined columns are its no-touch
+prediction refined with k touches (``visual+refine@k``).
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[i
     k_max = max(touches)
     header = (
         ["Model", "Seeds", "No touch"]
-        + [f"T&V {k}" for k in touches]
-        + [f"T&V {k} + refinement" for k in touches]
+        + [f"{k} touches" for k in touches]
+        + [f"{k} touches + refinement" for k in touches]
         + [f"Another object's {k_max}", f"Blank {k_max}"]
     )
     rows = []
@@ -61,8 +61,9 @@ def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[i
         rows.append(row)
     notes = [
         "Chamfer x1e-3, mean +- sample std over the seeds ('-' where a seed lacks the mode). No touch: every touch "
-        "masked out (for the visual-only model, its only mode). + refinement: the prediction pulled onto the k "
-        "touches' contact patches at test time (the visual-only model's no-touch prediction). Another object's / "
+        "masked out (for the visual-only model, its only mode). k touches: the view and the first k touches (for a "
+        "tactile-only model a blank view and the k touches). + refinement: the prediction pulled onto the k touches' "
+        "contact patches at test time (the visual-only model's no-touch prediction). Another object's / "
         f"Blank: the {k_max} touches' content replaced (touch_controls)."
     ]
     return Table("Over seeds: mean +- std", header, rows, notes)
