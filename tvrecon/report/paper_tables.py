@@ -188,7 +188,8 @@ def build_table4_vs_paper(results: Iterable[Mapping[str, Any]], classes: Sequenc
     notes = [
         "Chamfer x1e-3 per class with the row's most touches (the paper: 10 touches, view and touches); ours: the mean "
         "over the seeds, the average (over the classes present) as mean +- sample std over the seeds.",
-        "Mode per row of ours (tv@k = view + k touches; visual = no touch): " + "; ".join(modes),
+        "Mode per row of ours (tv@k = view + k touches; tactile@k = blank view + k touches; visual = no touch): "
+        + "; ".join(modes),
     ]
     return Table("Table 4: per-class chamfer x1e-3, the paper and ours", header, rows, notes)
 
