@@ -10,6 +10,7 @@ import torch
 from omegaconf import OmegaConf
 
 from tvrecon.losses.chamfer import chamfer_terms, nearest_neighbors
+from tvrecon.models import precision
 from tvrecon.models.components.gcn import (
     GraphConv,
     MeshDeformer,
@@ -18,7 +19,12 @@ from tvrecon.models.components.gcn import (
 )
 from tvrecon.models.components.perceptual import PerceptualPooling, bilinear_weights
 from tvrecon.models.components.projection import camera_to_pixel
-from tvrecon.models.precision import best_precision, cpu_has_native_bf16, register_precision_resolver
+from tvrecon.models.precision import (
+    best_precision,
+    cpu_bf16_is_faster,
+    cpu_has_native_bf16,
+    register_precision_resolver,
+)
 
 
 def _view(B: int = 2, H: int = 32) -> tuple[list[torch.Tensor], torch.Tensor]:
@@ -119,7 +125,7 @@ def test_best_precision(tmp_path: Path) -> None:
     without.write_text("processor\t: 0\nflags\t\t: fpu avx2 avx512f\n")
     assert cpu_has_native_bf16(with_bf16) and not cpu_has_native_bf16(without)
     assert not cpu_has_native_bf16(tmp_path / "missing")
-    expected = "bf16-mixed" if cpu_has_native_bf16() else "32-true"
+    expected = "bf16-mixed" if cpu_has_native_bf16() and cpu_bf16_is_faster() else "32-true"
     assert best_precision("cpu") == expected
     assert best_precision("mps") == "32-true"
     if not torch.cuda.is_available():
@@ -129,6 +135,26 @@ def test_best_precision(tmp_path: Path) -> None:
     register_precision_resolver()
     cfg = OmegaConf.create({"accelerator": "cpu", "precision": "${best_precision:${accelerator}}"})
     assert cfg.precision == expected
+
+
+def test_bf16_is_chosen_only_where_the_probe_finds_it_faster(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the probe's decision: bf16 within PROBE_MARGIN of float32's time, timed on a small real product
+    assert isinstance(cpu_bf16_is_faster((64, 16, 16), 1), bool)
+    for bf16_seconds, faster in ((0.5, True), (0.9, True), (0.95, False), (1.4, False)):
+        monkeypatch.setattr(
+            precision, "_product_seconds", lambda bf16, shape, repeats, s=bf16_seconds: s if bf16 else 1.0
+        )
+        cpu_bf16_is_faster.cache_clear()
+        assert cpu_bf16_is_faster() is faster
+    cpu_bf16_is_faster.cache_clear()
+    # native bf16 by the flags but slower by the probe (an Intel Xeon without AMX): float32
+    monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: True)
+    monkeypatch.setattr(precision, "cpu_bf16_is_faster", lambda: False)
+    assert best_precision("cpu") == "32-true"
+    monkeypatch.setattr(precision, "cpu_bf16_is_faster", lambda: True)
+    assert best_precision("cpu") == "bf16-mixed"
+    monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: False)
+    assert best_precision("cpu") == "32-true"  # no native bf16: no probe, float32
 
 
 def test_channels_last_switch_keeps_the_function() -> None:
