@@ -235,3 +235,37 @@ def test_benchmark_rows_name_each_suites_figure(tiny_results: Path) -> None:
     text = render("benchmarks", tiny_results)
     assert "1.50x the old code (median; 0.3 -> 0.2 CPU-s a touch), 4 of 4 jobs bit-identical" in text
     assert "bench_sim 12 s; bench_press 3 s (exit 1)" in text and "`python -m benchmarks.run`" in text
+
+
+def test_a_longer_schedule_is_a_row_apart_and_the_headline_keeps_the_schedule_of_the_papers_model(
+    tiny_results: Path,
+) -> None:
+    (tiny_results / "table1").mkdir()
+    long_cmd = "python train.py experiment={} data=tiny trainer.max_epochs=9 seed={}"
+    short_cmd = "python train.py experiment={} data=tiny trainer.max_epochs=3 seed={}"
+    # sorted after the 3-epoch runs, so a table that keeps the last group of a name would take it
+    _write_run(tiny_results / "table3" / "visual_only_s3_e9", _recon("visual_only", 3, 8.0), long_cmd.format("v", 3))
+    for seed, epochs, tv in ((1, 3, 5.0), (2, 3, 5.0), (1, 9, 4.0)):
+        folder = tiny_results / "table3" / f"touch_geometry_s{seed}_e{epochs}"
+        cmd = (long_cmd if epochs == 9 else short_cmd).format("touch_geometry", seed)
+        _write_run(folder, _recon("touch_geometry", seed, 14.0, {2: 7.0, 5: 6.0, 10: tv}), cmd)
+        manifest = json.loads((folder / "manifest.json").read_text())
+        (folder / "manifest.json").write_text(json.dumps(manifest | {"wall_s": 1800.0 * epochs / 3}))
+
+    row3 = next(line for line in render("headline", tiny_results).splitlines() if line.startswith("| 3:"))
+    assert "Pixel2Mesh 11.00 +- 1.41 (2 seeds)" in row3  # the 3-epoch Pixel2Mesh, as the paper's model's runs
+    assert "touch geometry 5.00 +- 0.00 (0.45x)" in row3 and "3 epochs" in row3
+
+    seeds = {line.split("|")[1].strip(): line.split("|")[3].strip()
+             for line in render("table3_touches", tiny_results).splitlines() if line.startswith("| ")}  # fmt: skip
+    assert seeds["Visual only (Pixel2Mesh)"] == "11.00 +- 1.41"  # the one 9-epoch seed is not mixed in
+
+    table = render("table3_schedules", tiny_results)
+    rows = [[c.strip() for c in line.split("|")[1:-1]] for line in table.splitlines() if line.startswith("| ")]
+    assert rows[1:] == [
+        ["Visual only (Pixel2Mesh)", "3", "1, 2", "11.00 +- 1.41", "-", "-", "-"],
+        ["Visual only (Pixel2Mesh)", "9", "3", "8.00", "-", "-", "-"],
+        ["Touch geometry (beyond the paper)", "3", "1, 2", "14.00 +- 0.00", "5.00 +- 0.00", "0.45x", "30 +- 0"],
+        ["Touch geometry (beyond the paper)", "9", "1", "14.00", "4.00", "0.50x", "90"],
+    ]
+    assert "full" not in table and "The paper's" not in table  # one schedule only: no row

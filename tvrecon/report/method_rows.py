@@ -18,6 +18,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from tvrecon.report.schedules import schedule_of
 from tvrecon.report.table_format import check_results, mean_std
 
 __all__ = ["METHODS", "Method", "MethodRow", "method_rows", "touch_ratio"]
@@ -62,10 +63,6 @@ class MethodRow:
     visual_from_touch_model: bool
 
 
-def _schedule(result: Result) -> tuple[Any, Any]:
-    return result.get("epochs"), result.get("precision")
-
-
 def _chamfer(result: Result, mode: str) -> float | None:
     entry = result["modes"].get(mode)
     return None if entry is None else float(entry["chamfer"])
@@ -77,7 +74,7 @@ def method_rows(results: Iterable[Result], methods: Sequence[Method] = METHODS) 
     recon = [r for r in check_results(results) if r["task"] == "reconstruction" and not r.get("fixed_visual")]
     by_key: dict[tuple[str, tuple[Any, Any]], list[Result]] = {}
     for r in recon:
-        by_key.setdefault((str(r["name"]), _schedule(r)), []).append(r)
+        by_key.setdefault((str(r["name"]), schedule_of(r)), []).append(r)
     rows = []
     for method in methods:
         schedules = [s for (n, s) in by_key if n in (method.tactile_visual, method.tactile)]

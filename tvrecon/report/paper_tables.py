@@ -15,6 +15,7 @@ from typing import Any
 from tvrecon.report.cls_report import build_table2
 from tvrecon.report.method_rows import method_rows, touch_ratio
 from tvrecon.report.paper_numbers import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4, PAPER_TABLE4_CLASSES
+from tvrecon.report.schedules import common_schedule, schedule_of, schedule_words
 from tvrecon.report.seed_summary import mean_std_cell
 from tvrecon.report.table_format import (
     CLS_TOUCHES,
@@ -36,24 +37,12 @@ __all__ = ["build_table1", "build_table2_vs_paper", "build_table3_vs_paper", "bu
 LABELS: dict[str, str] = {"full": "The paper's fusion model (`full`)"}
 
 
-def _schedule_words(
-    epochs: int | None, precision: str | None, common_epochs: int | None, common_precision: str
-) -> list[str]:
-    """The epochs and the precision of a row where they differ from the most common ones (``["24 epochs"]``)."""
-    words = []
-    if epochs is not None and epochs != common_epochs:
-        words.append(f"{epochs} epochs")
-    if precision is not None and precision != common_precision:
-        words.append(precision)
-    return words
-
-
 def _group_label(
     name: str, epochs: int | None, fixed: bool, precision: str | None, common_epochs: int | None, common_precision: str
 ) -> str:
     label = LABELS.get(name, PRETTY_NAMES.get(name, name))
     extra = ["visual path fixed"] if fixed else []
-    return ", ".join([label, *extra, *_schedule_words(epochs, precision, common_epochs, common_precision)])
+    return ", ".join([label, *extra, *schedule_words(epochs, precision, common_epochs, common_precision)])
 
 
 def seed_groups(results: Iterable[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, Any]]]]:
@@ -65,16 +54,8 @@ def seed_groups(results: Iterable[Mapping[str, Any]]) -> list[tuple[str, list[Ma
     for r in recon:
         key = (str(r["name"]), r.get("epochs"), bool(r.get("fixed_visual")), r.get("precision"))
         groups.setdefault(key, []).append(r)
-    common, common_precision = _common_schedule(recon)
+    common, common_precision = common_schedule(recon)
     return [(_group_label(n, e, f, p, common, common_precision), runs) for (n, e, f, p), runs in groups.items()]
-
-
-def _common_schedule(recon: Sequence[Mapping[str, Any]]) -> tuple[int | None, str]:
-    """The most common epochs (None where no result says) and training precision (``32-true`` where none says)."""
-    epochs = [r.get("epochs") for r in recon if r.get("epochs") is not None]
-    common = max(set(epochs), key=epochs.count) if epochs else None
-    precisions = [str(r.get("precision")) for r in recon if r.get("precision") is not None]
-    return common, max(set(precisions), key=precisions.count) if precisions else "32-true"
 
 
 def _mean(runs: Sequence[Mapping[str, Any]], mode: str) -> float | None:
@@ -104,9 +85,9 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
     visual = [runs for _, runs in groups if str(runs[0]["name"]) == "visual_only"]
     starred = False
     recon = [r for r in results if r["task"] == "reconstruction"]
-    common, common_precision = _common_schedule(recon)
+    common, common_precision = common_schedule(recon)
     for m in method_rows(recon):  # the paper's two rows on our data, each column from its own experiment
-        label = ", ".join([f"On our data: {m.method.label}", *_schedule_words(*m.schedule, common, common_precision)])
+        label = ", ".join([f"On our data: {m.method.label}", *schedule_words(*m.schedule, common, common_precision)])
         row = [label, _seeds(m.tactile_visual or m.tactile)]
         row.append(
             mean_std_cell(m.visual, ["visual"]) + ("*" if m.visual_from_touch_model else "") if m.visual else "-"
@@ -130,9 +111,10 @@ def build_table3_vs_paper(results: Iterable[Mapping[str, Any]], touches: Sequenc
             f"`{m.method.tactile_visual}`'s seeds against the mean Visual."
         )
     for label, runs in groups:
-        # Pixel2Mesh trained the same way (epochs, precision) where there is one, else the first visual-only row
-        same = [v for v in visual if all(v[0].get(k) == runs[0].get(k) for k in ("epochs", "precision"))]
-        same = same or [v for v in visual if v[0].get("precision") == runs[0].get("precision")] or visual
+        # Pixel2Mesh trained the same way (epochs, precision) where there is one, else at the most common epochs and
+        # the same precision (a model trained on top of a visual-only run: a few epochs of its own), else the first
+        same = [v for v in visual if schedule_of(v[0]) == schedule_of(runs[0])]
+        same = same or [v for v in visual if schedule_of(v[0]) == (common, runs[0].get("precision"))] or visual
         reference = _mean(same[0], "visual") if same else None
         visual_cell = mean_std_cell(runs, ["visual"])
         if visual_cell != "-" and runs[0].get("modality") == "tactile_visual":

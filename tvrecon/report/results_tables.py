@@ -12,6 +12,8 @@ results; ``--check`` writes nothing, names each stale block and exits 1. Rendere
 - ``headline``: one line per paper table, the paper's figure beside ours, with a link to its page (the README);
 - ``table1`` .. ``table4``: the paper's table with ours beside it, the seeds and spread, each row's command;
 - ``table3_touches``: the Table 3 models run with two or more seeds, with refinement and the touch controls;
+- ``table3_controls``: the touch controls at every touch count; ``table3_schedules``: the experiments trained at more
+  than one number of epochs, each schedule's chamfer and wall time;
 - ``benchmarks``: one line per benchmark and physics run of ``results/bench`` and ``results/physics``.
 
 A run folder is ``results/<suite>/<run>/`` with ``metrics.json`` and ``manifest.json`` (``results/README.md``).
@@ -37,6 +39,7 @@ from tvrecon.report.paper_tables import (
     build_table4_vs_paper,
     seed_groups,
 )
+from tvrecon.report.schedules import build_schedule_comparison, schedule_of
 from tvrecon.report.seed_summary import build_controls_over_seeds, build_seed_summary
 from tvrecon.report.table_format import PRETTY_NAMES, Table, mean_std
 from tvrecon.utils.atomic import atomic_write_text
@@ -71,7 +74,8 @@ class Run:
     def result(self) -> dict[str, Any]:
         """The metrics with what the tables need from the manifest: ``data_preset``, ``epochs`` (the command's
         ``trainer.max_epochs``), ``fixed_visual`` (the command freezes the visual path) and ``precision`` (the
-        manifest's, else the command's ``trainer.precision``, else ``32-true``: runs before the bf16 default)."""
+        manifest's, else the command's ``trainer.precision``, else ``32-true``: runs before the bf16 default) and
+        ``wall_s`` (the run's wall time)."""
         out = dict(self.metrics)
         command = str(self.manifest.get("command") or "")
         epochs = re.search(r"trainer\.max_epochs=(\d+)", command)
@@ -81,6 +85,7 @@ class Run:
         precision = re.search(r"trainer\.precision=(\S+)", command)
         out["precision"] = self.manifest.get("precision") or (precision[1] if precision else "32-true")
         out.setdefault("seed", self.manifest.get("seed"))
+        out["wall_s"] = self.manifest.get("wall_s")
         return out
 
 
@@ -156,6 +161,11 @@ def render_table3_touches(root: Path) -> str:
 def render_table3_controls(root: Path) -> str:
     _, results = _recon(root)
     return build_controls_over_seeds(results).to_markdown(compact=True)
+
+
+def render_table3_schedules(root: Path) -> str:
+    _, results = _recon(root)
+    return build_schedule_comparison(results).to_markdown(compact=True)
 
 
 def _cls(root: Path) -> tuple[list[Run], list[Run]]:
@@ -361,7 +371,17 @@ def render_headline(root: Path) -> str:
             "[table2](docs/reproduce/table2.md) |"
         )
     _, results = _recon(root)
-    groups3 = dict((runs_[0]["name"], runs_) for _, runs_ in seed_groups(results) if not runs_[0].get("fixed_visual"))
+    # every model at the schedule (epochs, precision) of the paper's model's row with the most seeds
+    by_name: dict[str, list[list[Mapping[str, Any]]]] = {}
+    for _, runs_ in seed_groups(results):
+        if not runs_[0].get("fixed_visual"):
+            by_name.setdefault(str(runs_[0]["name"]), []).append(runs_)
+    headline_schedule = schedule_of(max(by_name.get("full", [[{}]]), key=len)[0])
+    groups3 = {
+        name: next(g for g in groups if schedule_of(g[0]) == headline_schedule)
+        for name, groups in by_name.items()
+        if any(schedule_of(g[0]) == headline_schedule for g in groups)
+    }
     paper = PAPER_TABLE3["Ours (the paper's fusion model)"]
     if "visual_only" in groups3 and "full" in groups3:
         vis = [r["modes"]["visual"]["chamfer"] for r in groups3["visual_only"]]
@@ -379,7 +399,7 @@ def render_headline(root: Path) -> str:
         if "touch_geometry" in groups3:
             tg = [r["modes"]["tv@10"]["chamfer"] for r in groups3["touch_geometry"]]
             line += f"; touch geometry {_mean_cell(tg)} ({(sum(tg) / len(tg)) / (sum(vis) / len(vis)):.2f}x)"
-        schedule = (groups3["full"][0].get("epochs"), groups3["full"][0].get("precision"))
+        schedule = headline_schedule
         chart = [m for m in method_rows(results) if m.method.tactile_visual == "chart_based" and m.schedule == schedule]
         chart_ratio = touch_ratio(chart[0], 10) if chart else None
         if chart_ratio is not None:
@@ -419,6 +439,7 @@ RENDERERS: dict[str, Callable[[Path], str]] = {
     "table3": render_table3,
     "table3_touches": render_table3_touches,
     "table3_controls": render_table3_controls,
+    "table3_schedules": render_table3_schedules,
     "table4": render_table4,
     "benchmarks": render_benchmarks,
 }

@@ -1,11 +1,11 @@
-"""Mean +- std over seeds of the reconstruction modes that decide whether touch helps (runs of one experiment with
-several seeds, e.g. ``train.py -m experiment=touch_geometry seed=42,43``), and the touch controls at every touch count
-(:func:`build_controls_over_seeds`).
+"""Mean +- std over seeds of the reconstruction modes that decide whether touch helps (runs of one experiment and
+training schedule with several seeds, e.g. ``train.py -m experiment=touch_geometry seed=42,43``), and the touch
+controls at every touch count (:func:`build_controls_over_seeds`).
 
-One row per experiment name with at least two results; columns: no touch, Tactile & Visual with k touches (Tactile
-alone for the tactile-only models), the same refined onto the touches' contact patches, and the touch controls at the
-most touches (another object's touches, blank images). For the visual-only model the refined columns are its no-touch
-prediction refined with k touches (``visual+refine@k``).
+One row per experiment name and training schedule (:mod:`tvrecon.report.schedules`) with at least two results; columns:
+no touch, Tactile & Visual with k touches (Tactile alone for the tactile-only models), the same refined onto the
+touches' contact patches, and the touch controls at the most touches (another object's touches, blank images). For the
+visual-only model the refined columns are its no-touch prediction refined with k touches (``visual+refine@k``).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from tvrecon.report.schedules import common_schedule, schedule_of, schedule_words
 from tvrecon.report.table_format import PRETTY_NAMES, RECON_TOUCHES, Table, check_results, mean_std, ordered_rows
 
 __all__ = ["build_controls_over_seeds", "build_seed_summary", "mean_std_cell"]
@@ -33,14 +34,23 @@ def mean_std_cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) ->
     return f"{mean:.2f} +- {std:.2f}" if len(values) > 1 else f"{mean:.2f}"
 
 
+def _schedule_groups(recon: Sequence[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, Any]]]]:
+    """Results grouped by experiment name and training schedule (epochs, precision), each group labelled with its
+    name and what of its schedule differs from the most common one (``"Visual only (Pixel2Mesh), 24 epochs"``)."""
+    groups: dict[tuple[str, Any, Any], list[Mapping[str, Any]]] = {}
+    for r in recon:
+        groups.setdefault((str(r["name"]), *schedule_of(r)), []).append(r)
+    common_epochs, common_precision = common_schedule(recon)
+    return [
+        (", ".join([PRETTY_NAMES.get(n, n), *schedule_words(e, p, common_epochs, common_precision)]), runs)
+        for (n, e, p), runs in groups.items()
+    ]
+
+
 def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[int] = RECON_TOUCHES) -> Table:
     """Chamfer (x1e-3) mean +- std over the seeds of every reconstruction experiment run with two or more seeds."""
     recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
-    groups: dict[tuple[str, Any], list[Mapping[str, Any]]] = {}
-    for r in recon:  # runs trained at another precision (``precision``, where the result has it) are a row apart
-        groups.setdefault((str(r["name"]), r.get("precision")), []).append(r)
-    precisions = [str(r["precision"]) for r in recon if r.get("precision") is not None]
-    common = max(set(precisions), key=precisions.count) if precisions else None
+    groups = _schedule_groups(recon)
     k_max = max(touches)
     header = (
         ["Model", "Seeds", "No touch"]
@@ -49,11 +59,10 @@ def build_seed_summary(results: Iterable[Mapping[str, Any]], touches: Sequence[i
         + [f"Another object's {k_max}", f"Blank {k_max}"]
     )
     rows = []
-    for (name, precision), runs in groups.items():
+    for label, runs in groups:
         if len(runs) < 2:
             continue
         seeds = ", ".join(str(r.get("seed", "?")) for r in runs)
-        label = PRETTY_NAMES.get(name, name) + (f", {precision}" if precision not in (None, common) else "")
         row = [label, seeds, mean_std_cell(runs, ["visual"])]
         row += [mean_std_cell(runs, [f"tv@{k}", f"tactile@{k}"]) for k in touches]
         row += [mean_std_cell(runs, [f"tv@{k}+refine", f"tactile@{k}+refine", f"visual+refine@{k}"]) for k in touches]
@@ -73,18 +82,12 @@ def build_controls_over_seeds(results: Iterable[Mapping[str, Any]]) -> Table:
     """The touch controls at every touch count tested with them: own touches against another object's and blank
     ones, mean +- std over the seeds of each experiment (and training precision), one row per touch count."""
     recon = ordered_rows([r for r in check_results(results) if r["task"] == "reconstruction"])
-    groups: dict[tuple[str, Any], list[Mapping[str, Any]]] = {}
-    for r in recon:
-        if not r.get("fixed_visual"):
-            groups.setdefault((str(r["name"]), r.get("precision")), []).append(r)
-    precisions = [str(r["precision"]) for r in recon if r.get("precision") is not None]
-    common = max(set(precisions), key=precisions.count) if precisions else None
+    groups = _schedule_groups([r for r in recon if not r.get("fixed_visual")])
     header = ["Model", "Seeds", "Touches", "No touch", "Own touches", "Another object's", "Blank"]
     rows = []
-    for (name, precision), runs in groups.items():
+    for label, runs in groups:
         bases = [m.split(":")[0] for m in runs[0]["modes"] if m.endswith(":other")]
         bases = [b for b in bases if all(f"{b}:other" in r["modes"] for r in runs)]
-        label = PRETTY_NAMES.get(name, name) + (f", {precision}" if precision not in (None, common) else "")
         for base in sorted(bases, key=lambda b: int(b.split("@")[1])):
             row = [label, ", ".join(str(r.get("seed", "?")) for r in runs), base.split("@")[1]]
             row += [mean_std_cell(runs, [m]) for m in ("visual", base, f"{base}:other", f"{base}:blank")]
