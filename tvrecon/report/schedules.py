@@ -100,8 +100,8 @@ def build_schedule_comparison(results: Iterable[Result], touches: int = 10) -> T
         f"Chamfer x1e-3, mean +- sample std over the seeds (one seed: its value). {touches} touches / Visual: over the "
         "visual-only model's mean at the same number of epochs. The learning rate anneals to zero over each run's "
         "epochs (cosine), so a longer run is a different schedule, not the shorter one continued.",
-        "Minutes a run: the whole run (training, validation each epoch, the test with the touch controls) on the "
-        "machine its manifest names, two runs side by side on two cores; the runs of a row may come from different "
-        "machines and training steps (see `results/bench/train_step`).",
+        "Minutes a run: the whole run (training, validation each epoch, the test with the touch controls) as its "
+        "manifest records it; the runs of a row may come from different machines, thread counts and training steps "
+        "(see `results/bench/train_step`).",
     ]
     return Table(f"Training schedules: {touches} touches at each number of epochs", header, rows, notes)
