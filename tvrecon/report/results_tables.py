@@ -41,7 +41,7 @@ from tvrecon.report.paper_tables import (
 )
 from tvrecon.report.schedules import build_schedule_comparison, schedule_of
 from tvrecon.report.seed_summary import build_controls_over_seeds, build_seed_summary
-from tvrecon.report.table_format import PRETTY_NAMES, Table, mean_std
+from tvrecon.report.table_format import PRETTY_NAMES, Table, fmt_mean_std
 from tvrecon.utils.atomic import atomic_write_text
 
 __all__ = [
@@ -328,11 +328,6 @@ def _n_seeds(n: int) -> str:
     return f"{n} seed{'s' * (n != 1)}"
 
 
-def _mean_cell(values: Sequence[float], digits: int = 2) -> str:
-    mean, std = mean_std(values)
-    return f"{mean:.{digits}f} +- {std:.{digits}f}" if len(values) > 1 else f"{mean:.{digits}f}"
-
-
 def render_headline(root: Path) -> str:
     """One line per paper table: the paper's figure, ours (with its data preset and seeds), the page."""
     from tvrecon.data.presets import TABLE1, compose_preset, split_sizes
@@ -362,7 +357,9 @@ def render_headline(root: Path) -> str:
                 100 * float(r.metrics["accuracy"]["10"])
             )
     for (name, preset), values in groups.items():
-        cell = f"{_mean_cell(values, 1)}% ({PRETTY_NAMES.get(name, name).lower()}, `{preset}`, {_n_seeds(len(values))})"
+        cell = (
+            f"{fmt_mean_std(values, 1)}% ({PRETTY_NAMES.get(name, name).lower()}, `{preset}`, {_n_seeds(len(values))})"
+        )
         if best is None or sum(values) / len(values) > best[0]:
             best = (sum(values) / len(values), cell)
     if best:
@@ -393,12 +390,12 @@ def render_headline(root: Path) -> str:
             f"({paper['tv@10'] / paper['visual']:.2f}x)"
         )
         line = (
-            f"Pixel2Mesh {_mean_cell(vis)} ({_n_seeds(len(vis))}), the paper's model {_mean_cell(full)} "
+            f"Pixel2Mesh {fmt_mean_std(vis)} ({_n_seeds(len(vis))}), the paper's model {fmt_mean_std(full)} "
             f"({ratio:.2f}x, {_n_seeds(len(full))})"
         )
         if "touch_geometry" in groups3:
             tg = [r["modes"]["tv@10"]["chamfer"] for r in groups3["touch_geometry"]]
-            line += f"; touch geometry {_mean_cell(tg)} ({(sum(tg) / len(tg)) / (sum(vis) / len(vis)):.2f}x)"
+            line += f"; touch geometry {fmt_mean_std(tg)} ({(sum(tg) / len(tg)) / (sum(vis) / len(vis)):.2f}x)"
         schedule = headline_schedule
         chart = [m for m in method_rows(results) if m.method.tactile_visual == "chart_based" and m.schedule == schedule]
         chart_ratio = touch_ratio(chart[0], 10) if chart else None
@@ -406,7 +403,7 @@ def render_headline(root: Path) -> str:
             tv = [r["modes"]["tv@10"]["chamfer"] for r in chart[0].tactile_visual]
             own = "its own no-touch answer" if chart[0].visual_from_touch_model else "its visual-only model"
             line += (
-                f"; Chart-based {_mean_cell(tv)} ({(sum(tv) / len(tv)) / (sum(vis) / len(vis)):.2f}x Pixel2Mesh, "
+                f"; Chart-based {fmt_mean_std(tv)} ({(sum(tv) / len(tv)) / (sum(vis) / len(vis)):.2f}x Pixel2Mesh, "
                 f"{chart_ratio[0]:.2f}x {own}, {_n_seeds(len(tv))})"
             )
             chart_paper = PAPER_TABLE3["Chart-based (Smith et al. 2020)"]
@@ -425,7 +422,7 @@ def render_headline(root: Path) -> str:
         lines.append(
             f"| 4: per class, 10 touches | the paper's model: average {PAPER_TABLE4['full'][-1]}, {p_best} "
             f"{paper4[p_best]} to {p_worst} {paper4[p_worst]} | the paper's model: average "
-            f"{_mean_cell(averages)}, {best_c} {means[best_c]:.2f} to {worst_c} {means[worst_c]:.2f} "
+            f"{fmt_mean_std(averages)}, {best_c} {means[best_c]:.2f} to {worst_c} {means[worst_c]:.2f} "
             f"(means over {_n_seeds(len(per_class))}) | [table4](docs/reproduce/table4.md) |"
         )
     return "\n".join(lines) + "\n"

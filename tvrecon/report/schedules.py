@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from tvrecon.report.table_format import PRETTY_NAMES, Table, check_results, mean_std, ordered_rows
+from tvrecon.report.table_format import PRETTY_NAMES, Table, check_results, fmt_mean_std, ordered_rows
 
 __all__ = ["build_schedule_comparison", "common_schedule", "schedule_of", "schedule_words"]
 
@@ -51,10 +51,7 @@ def _chamfers(runs: Sequence[Result], mode: str) -> list[float] | None:
 
 
 def _cell(values: Sequence[float] | None) -> str:
-    if values is None:
-        return "-"
-    mean, std = mean_std(values)
-    return f"{mean:.2f} +- {std:.2f}" if len(values) > 1 else f"{mean:.2f}"
+    return "-" if values is None else fmt_mean_std(values)
 
 
 def build_schedule_comparison(results: Iterable[Result], touches: int = 10) -> Table:
@@ -90,10 +87,7 @@ def build_schedule_comparison(results: Iterable[Result], touches: int = 10) -> T
             if touched is not None and reference is not None:
                 ratio = f"{(sum(touched) / len(touched)) / (sum(reference) / len(reference)):.2f}x"
             walls = [float(r["wall_s"]) / 60 for r in runs if r.get("wall_s") is not None]
-            minutes = "-"
-            if walls and len(walls) == len(runs):
-                mean, std = mean_std(walls)
-                minutes = f"{mean:.0f} +- {std:.0f}" if len(walls) > 1 else f"{mean:.0f}"
+            minutes = fmt_mean_std(walls, digits=0) if walls and len(walls) == len(runs) else "-"
             seeds = ", ".join(str(r.get("seed", "?")) for r in runs)
             rows.append([label, str(epochs), seeds, _cell(_chamfers(runs, "visual")), _cell(touched), ratio, minutes])
     notes = [

@@ -14,7 +14,14 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from tvrecon.report.schedules import common_schedule, schedule_of, schedule_words
-from tvrecon.report.table_format import PRETTY_NAMES, RECON_TOUCHES, Table, check_results, mean_std, ordered_rows
+from tvrecon.report.table_format import (
+    PRETTY_NAMES,
+    RECON_TOUCHES,
+    Table,
+    check_results,
+    fmt_mean_std,
+    ordered_rows,
+)
 
 __all__ = ["build_controls_over_seeds", "build_seed_summary", "mean_std_cell"]
 
@@ -28,10 +35,7 @@ def mean_std_cell(results: Sequence[Mapping[str, Any]], modes: Sequence[str]) ->
         if mode is None:
             return "-"
         values.append(float(r["modes"][mode]["chamfer"]))
-    if not values:
-        return "-"
-    mean, std = mean_std(values)
-    return f"{mean:.2f} +- {std:.2f}" if len(values) > 1 else f"{mean:.2f}"
+    return fmt_mean_std(values) if values else "-"
 
 
 def _schedule_groups(recon: Sequence[Mapping[str, Any]]) -> list[tuple[str, list[Mapping[str, Any]]]]:

@@ -14,7 +14,17 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["CLS_TOUCHES", "PRETTY_NAMES", "Table", "check_results", "data_label", "data_note", "fmt", "mean_std"]
+__all__ = [
+    "CLS_TOUCHES",
+    "PRETTY_NAMES",
+    "Table",
+    "check_results",
+    "data_label",
+    "data_note",
+    "fmt",
+    "fmt_mean_std",
+    "mean_std",
+]
 
 #: Touch policies by the short name the tables give them (``data_protocol.touch`` of a result).
 TOUCH_NAMES: dict[str, str] = {
@@ -122,6 +132,12 @@ def mean_std(values: Sequence[float]) -> tuple[float, float]:
     mean = sum(values) / len(values)
     std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
     return mean, std
+
+
+def fmt_mean_std(values: Sequence[float], digits: int = 2) -> str:
+    """``"mean +- std"`` of a non-empty sequence with ``digits`` decimals; one value alone (it has no spread)."""
+    mean, std = mean_std(values)
+    return f"{mean:.{digits}f} +- {std:.{digits}f}" if len(values) > 1 else f"{mean:.{digits}f}"
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
